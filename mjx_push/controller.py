@@ -1,0 +1,68 @@
+"""Task-space velocity controller (SPEC section 3): the real robot's law, jit-compiled.
+
+Task error e = [c . z_ee - 1 ; p_d - p_ee] with c = (0, 0, -1): the first row keeps the push rod
+perpendicular to the table, the other three drive the flange to p_d. Jacobian rows c^T [z_ee]x J_rot and
+J_pos over joints 1-6 (joint 7 spins the rod about its own axis and is left still). With that sign
+convention J dq = e asks d(c . z_ee)/dt = 1 - c . z_ee, so both rows converge.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+from mujoco import mjx
+
+from mjx_push import scene
+
+C_AXIS = jnp.array([0.0, 0.0, -1.0])
+
+
+@dataclass(frozen=True)
+class ControllerConfig:
+    damping: float = 0.2  # lambda of the damped pseudo-inverse J^T (J J^T + lambda^2 I)^-1
+    gain: float = 1.0  # dq = gain * J^+ e (1.0 is the paper's law)
+    safety_scale: float = 1.0  # final scale on dq, as on the real robot
+    hold_per_step: bool = False  # the reference simulator's variant: dq computed once per env step
+
+    def __post_init__(self):
+        if not self.damping > 0:
+            raise ValueError(f"controller.damping must be > 0, got {self.damping}")
+        if not self.gain > 0:
+            raise ValueError(f"controller.gain must be > 0, got {self.gain}")
+        if not 0 < self.safety_scale <= 1:
+            raise ValueError(f"controller.safety_scale must be in (0, 1], got {self.safety_scale}")
+
+
+def flange_pose(d: mjx.Data, ids: scene.SceneIds) -> tuple[jax.Array, jax.Array]:
+    """Flange position (3,) and z axis (3,) from the data's kinematics."""
+    return d.site_xpos[ids.flange_site], d.site_xmat[ids.flange_site][:, 2]
+
+
+def joint_velocity(
+    m: mjx.Model, d: mjx.Data, target: jax.Array, ids: scene.SceneIds, cfg: ControllerConfig
+) -> jax.Array:
+    """Desired joint velocities (7,) driving the flange to `target` (3,) with the rod kept vertical."""
+    p, z = flange_pose(d, ids)
+    jacp, jacr = mjx.jac(m, d, p, ids.link7_body)  # (nv, 3) each
+    j_pos = jacp[:6].T
+    j_tilt = (jnp.cross(C_AXIS, z) @ jacr[:6].T)[None]  # c^T [z]x J_rot
+    jac = jnp.concatenate([j_tilt, j_pos], axis=0)  # (4, 6)
+    err = jnp.concatenate([jnp.dot(C_AXIS, z)[None] - 1.0, target - p])
+    gram = jac @ jac.T + cfg.damping**2 * jnp.eye(4)
+    dq = cfg.gain * (jac.T @ jnp.linalg.solve(gram, err))
+    dq = jnp.concatenate([dq, jnp.zeros(1)])
+    # Clip to the velocity limits and to the distance left to each position limit (reached no sooner
+    # than in 1 s at the law's unit gain); a joint outside its range may only move back in.
+    q = d.qpos[:7]
+    vlim = jnp.asarray(scene.VELOCITY_LIMIT)
+    lo = jnp.maximum(-vlim, jnp.asarray(scene.JOINT_RANGE[:, 0]) - q)
+    hi = jnp.minimum(vlim, jnp.asarray(scene.JOINT_RANGE[:, 1]) - q)
+    dq = jnp.minimum(jnp.maximum(dq, lo), hi)
+    return dq * cfg.safety_scale
+
+
+def rod_tilt(z_axis: jax.Array) -> jax.Array:
+    """Angle (rad) between the rod and the table normal."""
+    return jnp.arccos(jnp.clip(jnp.dot(C_AXIS, z_axis), -1.0, 1.0))

@@ -1,0 +1,48 @@
+"""Correction counters of SPEC section 7, updated at every 1 ms substep on noise-free positions.
+
+With d_k the object-goal distance at substep k, tau the success radius and eps a dead band:
+- overshoot: d_{k-1} < tau and d_k >= tau and |d_k - tau| > eps;
+- distance: a flag is set when d_k > d_{k-1} + eps; while it is set, d_k < d_{k-1} - eps counts one
+  correction and clears the flag.
+d_{-1} = +inf at reset. Non-finite distances never count.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+from flax import struct
+
+TAU = 0.01
+EPS = 2e-5
+
+
+@struct.dataclass
+class Corrections:
+    d_prev: jnp.ndarray  # distance at the previous substep (+inf after reset)
+    flag: jnp.ndarray  # bool: the distance has grown since the last distance correction
+    overshoot: jnp.ndarray  # int32 counter
+    distance: jnp.ndarray  # int32 counter
+
+    @classmethod
+    def init(cls) -> "Corrections":
+        return cls(
+            d_prev=jnp.asarray(jnp.inf, jnp.float32),
+            flag=jnp.asarray(False),
+            overshoot=jnp.asarray(0, jnp.int32),
+            distance=jnp.asarray(0, jnp.int32),
+        )
+
+
+def update(c: Corrections, d: jnp.ndarray, tau: float = TAU, eps: float = EPS) -> Corrections:
+    """Counters after observing the distance `d` of one more substep."""
+    over = (c.d_prev < tau) & (d >= tau) & (jnp.abs(d - tau) > eps)
+    grew = d > c.d_prev + eps
+    shrank = d < c.d_prev - eps
+    counted = c.flag & shrank
+    flag = jnp.where(counted, False, c.flag | grew)
+    return Corrections(
+        d_prev=d,
+        flag=flag,
+        overshoot=c.overshoot + over.astype(jnp.int32),
+        distance=c.distance + counted.astype(jnp.int32),
+    )

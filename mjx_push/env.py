@@ -1,0 +1,293 @@
+"""The pushing task as a functional MJX environment with brax's `Env` interface (SPEC sections 1-4, 8).
+
+One `PushEnv` simulates one environment with an object of one geom type; use it batched with
+`jax.vmap` (or through `mjx_push.batch.PushBatch`, which also mixes shapes). Everything an episode needs
+lives in the `State` pytree, so `reset` and `step` are pure and jittable.
+
+An environment step is split in three so that a scheduler can interleave environments whose a_s
+differ (see `mjx_push.batch` for the utilisation this costs when they wait for each other):
+`begin_step` (decode the action, set the target and the substep budget) -> `advance` (run up to n
+substeps; an environment whose budget is spent stands still) -> `finish_step` (observation, reward,
+validity). `step` chains them with an unbounded `advance`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from brax.envs.base import Env, State
+from mujoco import mjx
+
+from mjx_push import controller as ctl
+from mjx_push import corrections as corr
+from mjx_push import masks, objects, scene
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """Task settings (SPEC section 3). Nested configs hold the object distribution, the controller and
+    the MJX solver."""
+
+    objects: objects.ObjectConfig = field(default_factory=objects.ObjectConfig)
+    controller: ctl.ControllerConfig = field(default_factory=ctl.ControllerConfig)
+    solver: scene.SolverSettings = field(default_factory=scene.SolverSettings)
+    action_scale: float = 1.0  # metres per unit of a_x, a_y
+    substeps: tuple[int, int] = (10, 600)  # a_s in [-1, 1] maps linearly onto this, truncated
+    episode_length: int = 50
+    success_tau: float = corr.TAU
+    obs_noise: float = 1e-4  # std of the Gaussian noise on the observed flange xy
+    workspace_x: tuple[float, float] = (0.10, 0.65)
+    workspace_y: tuple[float, float] = (-0.25, 0.25)
+    # Out-of-bounds: the object's centre must stay above the table footprint and within this height
+    # band around its resting height (below: sank through; above: flew off).
+    oob_sink: float = 0.02
+    oob_rise: float = 0.15
+
+    def __post_init__(self):
+        lo, hi = self.substeps
+        if not (isinstance(lo, (int, np.integer)) and isinstance(hi, (int, np.integer)) and 1 <= lo <= hi):
+            raise ValueError(f"env.substeps must be integers 1 <= low <= high, got {self.substeps!r}")
+        if not self.action_scale > 0:
+            raise ValueError(f"env.action_scale must be > 0, got {self.action_scale}")
+        if self.episode_length < 1:
+            raise ValueError(f"env.episode_length must be >= 1, got {self.episode_length}")
+        if not self.success_tau > 0:
+            raise ValueError(f"env.success_tau must be > 0, got {self.success_tau}")
+        if self.obs_noise < 0:
+            raise ValueError(f"env.obs_noise must be >= 0, got {self.obs_noise}")
+        for name in ("workspace_x", "workspace_y"):
+            r = getattr(self, name)
+            if len(r) != 2 or not r[0] < r[1]:
+                raise ValueError(f"env.{name} must be (low, high) with low < high, got {r!r}")
+
+
+# Explicit dtypes everywhere in the state: a weakly typed scalar returned by reset but strongly typed
+# after a step would make every jitted caller compile twice.
+_F0 = np.float32(0.0)
+
+
+def decode_substeps(a_s: jax.Array, substeps: tuple[int, int]) -> jax.Array:
+    """a_s in [-1, 1] -> integer substeps in [low, high] (linear, truncated)."""
+    lo, hi = substeps
+    n = jnp.floor(lo + (jnp.clip(a_s, -1.0, 1.0) + 1.0) * 0.5 * (hi - lo))
+    return jnp.clip(n, lo, hi).astype(jnp.int32)
+
+
+def sanitize_action(action: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Documented clip: non-finite components become 0 and the rest are clipped to [-1, 1].
+    Returns the action and whether anything was non-finite (counted in info['bad_actions'])."""
+    finite = jnp.isfinite(action)
+    return jnp.clip(jnp.where(finite, action, 0.0), -1.0, 1.0), ~jnp.all(finite)
+
+
+def yaw_quat(yaw: jax.Array) -> jax.Array:
+    return jnp.stack([jnp.cos(yaw / 2), 0.0 * yaw, 0.0 * yaw, jnp.sin(yaw / 2)])
+
+
+def quat_yaw(q: jax.Array) -> jax.Array:
+    w, x, y, z = q
+    return jnp.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+
+
+class PushEnv(Env):
+    """Franka Panda pushes one object of geom type `geom_type` ("box" or "cylinder") to a goal."""
+
+    def __init__(self, config: EnvConfig = EnvConfig(), geom_type: str = "box"):
+        if geom_type not in config.objects.shapes():
+            raise ValueError(
+                f"geom_type {geom_type!r} is not drawn by shape filter {config.objects.shape!r}"
+                f" (it draws {config.objects.shapes()})"
+            )
+        self.config = config
+        self.geom_type = geom_type
+        self.mj_model = scene.build_model(geom_type, config.solver)
+        self.ids = scene.scene_ids(self.mj_model)
+        self.sys = mjx.put_model(self.mj_model)
+        self._data0 = mjx.make_data(self.sys)
+        self.home_flange = jnp.asarray(scene.home_flange_pos(), jnp.float32)
+
+    # --- brax Env interface -------------------------------------------------------------------------
+    @property
+    def observation_size(self):
+        n = scene.IMAGE_SIZE
+        return {"ee_xy": (2,), "object_mask": (n, n), "goal_mask": (n, n)}
+
+    @property
+    def action_size(self) -> int:
+        return 3
+
+    @property
+    def backend(self) -> str:
+        return "mjx"
+
+    def reset(self, rng: jax.Array) -> State:
+        rng, k_obj = jax.random.split(rng)
+        params = objects.sample(k_obj, self.config.objects, self.geom_type, self.home_flange[:2])
+        return self.reset_with(rng, params)
+
+    def reset_with(self, rng: jax.Array, params: objects.ObjectParams) -> State:
+        """Start an episode with the given object (evaluation scenarios, tests, replays)."""
+        rng, k_noise = jax.random.split(rng)
+        data = self._initial_data(params)
+        hh = objects.half_height(params, self.geom_type)
+        goal_mask = masks.object_mask(
+            self.geom_type, params.size, params.goal[:2], params.goal[2], scene.TABLE_TOP + hh
+        )
+        zero_i = jnp.asarray(0, jnp.int32)
+        info = {
+            "rng": rng,
+            "params": params,
+            "initial_data": data,
+            "goal_mask": goal_mask,
+            "step": zero_i,
+            "target": self.home_flange,
+            "substeps_left": zero_i,
+            "substeps": zero_i,  # substeps run by the last env step
+            "held_ctrl": jnp.zeros(7),
+            "corrections": corr.Corrections.init(),
+            "episode_invalid": jnp.asarray(False),
+            "invalid_count": zero_i,
+            "bad_actions": zero_i,
+            "max_tilt": _F0,
+            "max_height_error": _F0,
+            "truncation": _F0,
+        }
+        info.update(self._ground_truth(data, params))
+        obs = self._observation(data, params, goal_mask, k_noise)
+        reward, success = self._reward(info)
+        metrics = {"success": success}
+        return State(data, obs, reward, _F0, metrics, info)
+
+    def step(self, state: State, action: jax.Array) -> State:
+        return self.finish_step(self.advance(self.begin_step(state, action)))
+
+    # --- the three phases of a step ------------------------------------------------------------------
+    def begin_step(self, state: State, action: jax.Array) -> State:
+        action = jnp.asarray(action)
+        if action.shape != (3,):
+            raise ValueError(f"action must have shape (3,) = (a_x, a_y, a_s) per environment, got {action.shape}")
+        action, bad = sanitize_action(action)
+        cfg = self.config
+        ee = state.pipeline_state.site_xpos[self.ids.flange_site]
+        xy = ee[:2] + action[:2] * cfg.action_scale
+        xy = jnp.stack([jnp.clip(xy[0], *cfg.workspace_x), jnp.clip(xy[1], *cfg.workspace_y)])
+        target = jnp.concatenate([xy, self.home_flange[2:]])
+        n = decode_substeps(action[2], cfg.substeps)
+        info = dict(state.info)
+        info.update(target=target, substeps_left=n, substeps=n, bad_actions=info["bad_actions"] + bad)
+        info.update(max_tilt=_F0, max_height_error=_F0)
+        if cfg.controller.hold_per_step:
+            m = objects.apply(self.sys, info["params"], self.ids, self.geom_type)
+            info["held_ctrl"] = ctl.joint_velocity(m, state.pipeline_state, target, self.ids, cfg.controller)
+        return state.replace(info=info)
+
+    def advance(self, state: State, max_substeps: int | None = None) -> State:
+        """Run up to `max_substeps` substeps (all remaining if None) of the current env step."""
+        m = objects.apply(self.sys, state.info["params"], self.ids, self.geom_type)
+        cfg = self.config
+        goal_xy = state.info["params"].goal[:2]
+        home_z = self.home_flange[2]
+
+        def substep(carry):
+            data, info, k = carry
+            if cfg.controller.hold_per_step:
+                dq = info["held_ctrl"]
+            else:
+                dq = ctl.joint_velocity(m, data, info["target"], self.ids, cfg.controller)
+            data = mjx.step(m, data.replace(ctrl=dq))
+            # Metrics on the substep's kinematics (MJX data after a step holds the positions the step
+            # started from; one substep of lag is immaterial for counting).
+            obj_xy = data.qpos[self.ids.object_qpos : self.ids.object_qpos + 2]
+            c = corr.update(info["corrections"], jnp.linalg.norm(obj_xy - goal_xy), cfg.success_tau)
+            p, z = ctl.flange_pose(data, self.ids)
+            info = dict(info)
+            info.update(
+                corrections=c,
+                substeps_left=info["substeps_left"] - 1,
+                max_tilt=jnp.maximum(info["max_tilt"], ctl.rod_tilt(z)),
+                max_height_error=jnp.maximum(info["max_height_error"], jnp.abs(p[2] - home_z)),
+            )
+            return data, info, k + 1
+
+        def cond(carry):
+            _, info, k = carry
+            more = info["substeps_left"] > 0
+            return more if max_substeps is None else more & (k < max_substeps)
+
+        data, info, _ = jax.lax.while_loop(cond, substep, (state.pipeline_state, dict(state.info), 0))
+        return state.replace(pipeline_state=data, info=info)
+
+    def finish_step(self, state: State) -> State:
+        info = dict(state.info)
+        params = info["params"]
+        data = state.pipeline_state
+        rng, k_noise = jax.random.split(info["rng"])
+        invalid = ~self._valid(data, params)
+        # An invalid state (NaN, object through or off the table) is replaced by the episode's initial
+        # state (kept from reset: no second forward pass to compile) so nothing non-finite reaches the
+        # learner; the episode stays flagged until reset.
+        data = jax.tree.map(lambda a, b: jnp.where(invalid, a, b), info["initial_data"], data)
+        info.update(self._ground_truth(data, params))
+        info["rng"] = rng
+        info["step"] = info["step"] + 1
+        info["episode_invalid"] = info["episode_invalid"] | invalid
+        info["invalid_count"] = info["invalid_count"] + invalid.astype(jnp.int32)
+        done = (info["step"] >= self.config.episode_length).astype(jnp.float32)
+        info["truncation"] = done  # time limit only: learners bootstrap
+        obs = self._observation(data, params, info["goal_mask"], k_noise)
+        reward, success = self._reward(info)
+        metrics = dict(state.metrics)
+        metrics["success"] = success
+        return state.replace(pipeline_state=data, obs=obs, reward=reward, done=done, metrics=metrics, info=info)
+
+    # --- helpers -------------------------------------------------------------------------------------
+    def model(self, params: objects.ObjectParams) -> mjx.Model:
+        """The MJX model of an environment with object `params`."""
+        return objects.apply(self.sys, params, self.ids, self.geom_type)
+
+    def _initial_data(self, params: objects.ObjectParams) -> mjx.Data:
+        hh = objects.half_height(params, self.geom_type)
+        obj = jnp.concatenate(
+            [params.start[:2], (scene.TABLE_TOP + hh)[None], yaw_quat(params.start[2])]
+        )
+        qpos = jnp.concatenate([jnp.asarray(scene.HOME_QPOS, jnp.float32), obj])
+        data = self._data0.replace(qpos=qpos)
+        return mjx.forward(self.model(params), data)
+
+    def _ground_truth(self, data: mjx.Data, params: objects.ObjectParams) -> dict:
+        a = self.ids.object_qpos
+        return {
+            "object_xy": data.qpos[a : a + 2],
+            "object_yaw": quat_yaw(data.qpos[a + 3 : a + 7]),
+            "object_z": data.qpos[a + 2],
+            "goal_xy": params.goal[:2],
+            "goal_yaw": params.goal[2],
+            "ee_xy_true": data.site_xpos[self.ids.flange_site][:2],
+        }
+
+    def _observation(self, data, params, goal_mask, key) -> dict:
+        a = self.ids.object_qpos
+        yaw = quat_yaw(data.qpos[a + 3 : a + 7])
+        obj_mask = masks.object_mask(self.geom_type, params.size, data.qpos[a : a + 2], yaw, data.qpos[a + 2])
+        ee = data.site_xpos[self.ids.flange_site][:2]
+        noise = self.config.obs_noise * jax.random.normal(key, (2,))
+        return {"ee_xy": ee + noise, "object_mask": obj_mask, "goal_mask": goal_mask}
+
+    def _reward(self, info) -> tuple[jax.Array, jax.Array]:
+        dist = jnp.linalg.norm(info["object_xy"] - info["goal_xy"])
+        success = (dist < self.config.success_tau).astype(jnp.float32)
+        return success - 1.0, success
+
+    def _valid(self, data: mjx.Data, params: objects.ObjectParams) -> jax.Array:
+        a = self.ids.object_qpos
+        finite = jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.isfinite(data.qvel))
+        x, y, z = data.qpos[a], data.qpos[a + 1], data.qpos[a + 2]
+        rest = scene.TABLE_TOP + objects.half_height(params, self.geom_type)
+        on_table = (
+            (x >= scene.TABLE_X[0]) & (x <= scene.TABLE_X[1]) & (y >= scene.TABLE_Y[0]) & (y <= scene.TABLE_Y[1])
+        )
+        in_band = (z > rest - self.config.oob_sink) & (z < rest + self.config.oob_rise)
+        return finite & on_table & in_band

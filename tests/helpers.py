@@ -1,0 +1,56 @@
+"""Test helpers: a per-shape compiled simulator with a fixed batch size and object builders."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mjx_push import objects, scene
+from mjx_push.env import EnvConfig, PushEnv
+
+B = 4  # every physics test uses this batch size, so each compiled function is built once
+HOME_XY = scene.home_flange_pos()[:2]
+
+
+def make_params(geom_type: str, *, sides=(0.08, 0.06), radius=0.05, height=0.05, mass=0.2, friction=0.5,
+                start=(0.1, 0.08, 0.0), goal=(0.05, -0.05, 0.0)) -> objects.ObjectParams:
+    """One object; start and goal are offsets from the home flange xy plus a yaw."""
+    if geom_type == "box":
+        size = np.array([sides[0] / 2, sides[1] / 2, height / 2])
+        inertia = mass / 12 * np.array([sides[1] ** 2 + height**2, sides[0] ** 2 + height**2, sides[0] ** 2 + sides[1] ** 2])
+    else:
+        size = np.array([radius, height / 2, 0.0])
+        ixx = mass * (3 * radius**2 + height**2) / 12
+        inertia = np.array([ixx, ixx, mass * radius**2 / 2])
+    s = np.array([HOME_XY[0] + start[0], HOME_XY[1] + start[1], start[2]])
+    g = np.array([HOME_XY[0] + goal[0], HOME_XY[1] + goal[1], goal[2]])
+    f = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+    return objects.ObjectParams(size=f(size), mass=f(mass), inertia=f(inertia),
+                                friction=f([friction, 0.005, scene.OBJECT_ROLL_FRICTION]), start=f(s), goal=f(g))
+
+
+def stack(params_list):
+    return jax.tree.map(lambda *xs: jnp.stack(xs), *params_list)
+
+
+def action_for(ee_xy, target_xy, a_s):
+    """Action (B, 3) commanding absolute flange targets with action_scale 1."""
+    return jnp.concatenate([jnp.asarray(target_xy) - jnp.asarray(ee_xy), jnp.full((ee_xy.shape[0], 1), a_s)], axis=1)
+
+
+def a_s_for(n: int, lo: int = 10, hi: int = 600) -> float:
+    """An a_s value that decodes to exactly n substeps."""
+    return 2.0 * (n + 0.5 - lo) / (hi - lo) - 1.0
+
+
+class Sim:
+    def __init__(self, geom_type: str, config: EnvConfig = EnvConfig()):
+        self.env = PushEnv(config, geom_type)
+        self.geom_type = geom_type
+        self.reset_with = jax.jit(jax.vmap(self.env.reset_with))
+        self.step = jax.jit(jax.vmap(self.env.step))
+
+    def start(self, params_list, seed: int = 0):
+        assert len(params_list) == B
+        return self.reset_with(jax.random.split(jax.random.PRNGKey(seed), B), stack(params_list))
