@@ -70,7 +70,7 @@ def main(argv=None) -> None:
     p.add_argument("--steps", type=int, default=5)
     p.add_argument("--out", type=Path, default=Path("outputs/bench_env.json"))
     args = p.parse_args(argv)
-    console = Console()
+    console = Console(width=160)
     rows = []
     for n in args.batch_sizes:
         console.print(f"batch {n} ...")
