@@ -1,0 +1,146 @@
+"""The jitted collect + update loop and its driver (train/loop.py) on the toy task (train/toy.py).
+
+The learning tests are the end-to-end check of SAC + HER: a VPM and a GRU agent must reach >= 90 %
+deterministic success on the toy goal-reaching task within about a minute of CPU each.
+"""
+
+import train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
+
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from train.config import AgentConfig, LoopConfig, ReplayConfig, SACConfig, TrainConfig
+from train.loop import EnvAdapter, make_train, train as run_train
+from train.toy import make_toy
+
+TAU = 0.025  # toy success radius (the real task's is 0.01)
+HELD_OUT = jax.random.PRNGKey(12345)  # evaluation episodes the best-model selection never saw
+
+
+def toy_config(kind, total_env_steps, seed=0, hidden=(128, 256, 64), batch_size=128, **loop):
+    loop = {
+        "num_envs": 8,
+        "episode_len": 10,
+        "total_env_steps": total_env_steps,
+        "warmup_env_steps": 480,
+        "utd": 1.0,
+        "eval_every_env_steps": 800,
+        "eval_episodes": 100,
+        "seed": seed,
+        **loop,
+    }
+    return TrainConfig(
+        agent=AgentConfig(kind, hidden=hidden),
+        sac=SACConfig(batch_size=batch_size),
+        replay=ReplayConfig(capacity_transitions=20_000, success_tau=TAU),
+        loop=LoopConfig(**loop),
+    )
+
+
+@pytest.fixture(scope="module", params=[("vpm", 1600), ("ugru", 1920)], ids=["vpm", "ugru"])
+def learned(request):
+    kind, steps = request.param
+    cfg = toy_config(kind, steps)
+    adapter = make_toy(success_tau=TAU)
+    trainer = make_train(cfg, adapter)
+    initial_actor = trainer.init(jax.random.PRNGKey(0)).sac.actor_params
+    t0 = time.perf_counter()
+    state, history = run_train(jax.random.PRNGKey(0), cfg, adapter, trainer=trainer)
+    wall = time.perf_counter() - t0
+    evaluate = jax.jit(trainer.evaluate)
+    print(f"\n{kind}: final eval {history[-1]['eval/success_rate']:.2f}, best {float(state.best_eval_success):.2f}, "
+          f"{wall:.1f} s")
+    return cfg, trainer, state, history, evaluate, initial_actor
+
+
+def test_learns_the_toy_task(learned):
+    cfg, trainer, state, history, evaluate, initial_actor = learned
+    before = evaluate(initial_actor, HELD_OUT)
+    assert float(before["success_rate"]) < 0.2  # the task is not solved by chance
+    assert history[-1]["eval/success_rate"] >= 0.9
+    after = evaluate(state.best_actor_params, HELD_OUT)
+    assert float(after["success_rate"]) >= 0.9, after
+    assert float(after["mean_reward"]) > float(before["mean_reward"]) + 3.0
+
+
+def test_best_params_are_selected_by_mean_reward(learned):
+    cfg, trainer, state, history, evaluate, _ = learned
+    evals = [h for h in history if "eval/mean_reward" in h]
+    # Every 800 env steps, and after the last iteration.
+    steps = cfg.loop.total_env_steps
+    assert [h["env_steps"] for h in evals] == sorted(set(range(800, steps + 1, 800)) | {steps})
+    best = max(h["eval/mean_reward"] for h in evals)
+    assert float(state.best_eval_reward) == pytest.approx(best)
+    # The kept params reproduce that score on the (fixed) evaluation episodes.
+    again = evaluate(state.best_actor_params, trainer.eval_key)
+    assert float(again["mean_reward"]) == pytest.approx(best)
+
+
+def test_warmup_then_updates_per_batch(learned):
+    cfg, trainer, state, history, _, _ = learned
+    per_iter = cfg.loop.updates_per_iteration
+    assert per_iter == 80
+    learning = [h["learning"] for h in history]
+    first = learning.index(True)
+    # Random actions and no updates until 480 env steps (6 batches of 80), then 80 updates per batch.
+    assert first == 5 and not any(learning[:first]) and all(learning[first:])
+    expected_updates = [max(0, i - first + 1) * per_iter for i in range(len(history))]
+    assert [h["updates"] for h in history] == expected_updates
+    assert [h["env_steps"] for h in history] == [80 * (i + 1) for i in range(len(history))]
+    assert int(state.sac.step) == (len(history) - first) * per_iter
+
+
+def nan_toy(invalid_prob=0.1):
+    """The toy, but a step flagged invalid also returns NaN observations (a blown-up simulation)."""
+    toy = make_toy(success_tau=TAU, invalid_prob=invalid_prob)
+
+    def step(state, action):
+        state, obs, invalid = toy.step(state, action)
+        obs = jax.tree.map(lambda x: jnp.where(invalid[:, None], jnp.nan, x), obs)
+        return state, obs, invalid
+
+    return EnvAdapter(reset=toy.reset, step=step, success_tau=TAU)
+
+
+@pytest.fixture(scope="module")
+def small():
+    cfg = toy_config("vpm", 400, hidden=(32, 32), batch_size=16, warmup_env_steps=0, utd=0.25, eval_every_env_steps=160)
+    adapter = nan_toy()
+    return cfg, adapter, make_train(cfg, adapter)
+
+
+def test_invalid_episodes_do_not_poison_learning(small):
+    cfg, adapter, trainer = small
+    state, history = run_train(jax.random.PRNGKey(1), cfg, adapter, trainer=trainer)
+    invalid = np.mean([h["train/invalid_rate"] for h in history])
+    assert 0.3 < invalid < 0.9  # 1 - 0.9**10 = 65 % of episodes hit an invalid step
+    valid_episodes = round(sum((1 - h["train/invalid_rate"]) * 8 for h in history))
+    assert int(np.sum(state.buffer.data["valid"])) == history[-1]["replay/valid_episodes"] == valid_episodes
+    assert all(np.isfinite(np.asarray(x)).all() for x in jax.tree.leaves(state.buffer.data))
+    # Updates start once 16 valid transitions are stored, 20 per batch from then on.
+    learning = sum(h["learning"] for h in history)
+    assert learning >= 3 and int(state.sac.step) == learning * 20
+    assert all(np.isfinite(np.asarray(x)).all() for x in jax.tree.leaves(state.sac))
+    assert all(np.isfinite(h["sac/critic_loss"]) for h in history)
+
+
+def test_resuming_gives_the_same_result(small):
+    cfg, adapter, trainer = small
+    full, _ = run_train(jax.random.PRNGKey(2), cfg, adapter, trainer=trainer)
+    stop_at_160 = lambda s, m: m["env_steps"] >= 160  # noqa: E731
+    part, h1 = run_train(jax.random.PRNGKey(2), cfg, adapter, callback=stop_at_160, trainer=trainer)
+    assert len(h1) == 2
+    resumed, h2 = run_train(None, cfg, adapter, trainer=trainer, state=part)
+    assert len(h2) == 3
+    jax.tree.map(np.testing.assert_array_equal, resumed.sac, full.sac)
+    jax.tree.map(np.testing.assert_array_equal, resumed.best_actor_params, full.best_actor_params)
+
+
+def test_success_radius_must_match_the_environment():
+    cfg = toy_config("vpm", 400)
+    with pytest.raises(ValueError, match="replay.success_tau must equal"):
+        make_train(cfg, make_toy(success_tau=0.01))

@@ -1,0 +1,182 @@
+"""SAC losses and update (train/sac.py) against hand-computed values.
+
+A stub "network" makes every number computable by hand:
+  policy:  a = a_param + 0.1 * idx (per action dim), log pi = lp_param (noise ignored)
+  critics: Q_i = w_i * sum(a) + c_i * idx
+The worked numbers are in the comments next to each expectation.
+"""
+
+import train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from train.config import AgentConfig, SACConfig
+from train.networks import make_networks
+from train.sac import (
+    SACState,
+    actor_loss_value,
+    alpha_loss,
+    critic_loss_value,
+    init_state,
+    make_actor_loss,
+    make_critic_loss,
+    make_optimizer,
+    make_update,
+    td_target,
+)
+
+
+class StubNets:
+    action_dim = 3
+
+    def policy(self, p, episode, idx, noise):
+        a = p["a"] + 0.1 * idx[..., None].astype(jnp.float32)
+        return a, jnp.broadcast_to(p["lp"], idx.shape)
+
+    def q(self, p, episode, idx, action):
+        return p["w"][:, None, None] * jnp.sum(action, -1)[None] + p["c"][:, None, None] * idx[None]
+
+
+ACTOR = {"a": jnp.full((3,), 0.5), "lp": jnp.float32(-1.5)}
+CRITIC = {"w": jnp.array([2.0, -1.0]), "c": jnp.array([0.0, 1.0])}
+TARGET = {"w": jnp.array([1.0, 2.0]), "c": jnp.array([0.5, -0.5])}
+BATCH = {
+    "t": jnp.array([0, 2]),
+    "reward": jnp.array([-1.0, 0.0]),
+    "action": jnp.array([[0.1, 0.2, 0.3], [1.0, 0.0, -1.0]]),  # sums 0.6 and 0
+}
+ALPHA, GAMMA = 0.5, 0.9
+KEY = jax.random.PRNGKey(0)
+
+
+def test_loss_arithmetic():
+    # r + gamma * (min Q' - alpha logp') = -1 + 0.9 * (2 - 0.5 * -2) = 1.7
+    np.testing.assert_allclose(td_target(-1.0, jnp.array([[2.0], [3.0]]), -2.0, 0.5, 0.9), [1.7], rtol=1e-6)
+    # 0.5 * (mean((1-0)^2, (3-1)^2) + mean((0-0)^2, (-1-1)^2)) = 0.5 * (2.5 + 2) = 2.25
+    np.testing.assert_allclose(critic_loss_value(jnp.array([[1.0, 3.0], [0.0, -1.0]]), jnp.array([0.0, 1.0])), 2.25)
+    # mean(0.2 * logp - min Q) = mean(0.2 * -1 - 1, 0.2 * 0.5 - (-2)) = mean(-1.2, 2.1) = 0.45
+    np.testing.assert_allclose(
+        actor_loss_value(jnp.array([-1.0, 0.5]), jnp.array([[1.0, 4.0], [3.0, -2.0]]), 0.2), 0.45, rtol=1e-6
+    )
+    # -mean(log_alpha * (logp + H)) = -(ln 2 * mean(-1 - 3, 1 - 3)) = 3 ln 2; d/dlog_alpha = 3
+    la = jnp.float32(math.log(2.0))
+    value, grad = jax.value_and_grad(alpha_loss)(la, jnp.array([-1.0, 1.0]), -3.0)
+    np.testing.assert_allclose([value, grad], [3 * math.log(2.0), 3.0], rtol=1e-6)
+
+
+def test_critic_loss_with_stub_networks():
+    loss, aux = make_critic_loss(StubNets(), GAMMA)(CRITIC, TARGET, ACTOR, ALPHA, BATCH, KEY)
+    # next actions at t+1 = 1, 3: a = 0.6 and 0.8 per dim, sums 1.8 and 2.4, logp -1.5
+    # target critics: Q1' = 1.8 + 0.5 = 2.3, Q2' = 3.6 - 0.5 = 3.1 -> min 2.3
+    #                 Q1' = 2.4 + 1.5 = 3.9, Q2' = 4.8 - 1.5 = 3.3 -> min 3.3
+    # y = -1 + 0.9 (2.3 + 0.75) = 1.745;  y = 0 + 0.9 (3.3 + 0.75) = 3.645  (no done flag: always bootstrap)
+    np.testing.assert_allclose(aux["target_q"], (1.745 + 3.645) / 2, rtol=1e-6)
+    # online critics at t = 0, 2 with the stored actions: Q1 = (1.2, 0), Q2 = (-0.6, 2)
+    # 0.5 * [((1.2-1.745)^2 + 3.645^2) / 2 + (2.345^2 + 1.645^2) / 2] = 0.5 * (6.791525 + 4.102525)
+    np.testing.assert_allclose(loss, 5.447025, rtol=1e-6)
+
+
+def test_actor_loss_with_stub_networks():
+    actor_loss = make_actor_loss(StubNets())
+    (loss, logp), grads = jax.value_and_grad(actor_loss, has_aux=True)(ACTOR, CRITIC, ALPHA, BATCH, KEY)
+    # actions at t = 0, 2: sums 1.5 and 2.1.  Q1 = (3.0, 4.2), Q2 = (-1.5, -2.1 + 2) -> min (-1.5, -0.1)
+    # mean(0.5 * -1.5 - min) = mean(0.75, -0.65) = 0.05
+    np.testing.assert_allclose(loss, 0.05, rtol=1e-5)
+    np.testing.assert_allclose(logp, [-1.5, -1.5])
+    # d/da_j of mean(-min Q) = mean(1, 1) (the min is Q2 = -sum(a) + ...); d/dlp = alpha
+    np.testing.assert_allclose(grads["a"], [1.0, 1.0, 1.0], rtol=1e-6)
+    np.testing.assert_allclose(grads["lp"], ALPHA, rtol=1e-6)
+
+
+def test_update_with_stub_networks():
+    """The whole update: critic step, then the actor against the UPDATED critic, then alpha; all with
+    the pre-update alpha; Polyak averaging. Adam's first step moves each parameter by lr * sign(grad)."""
+    cfg = SACConfig(lr=0.1, tau=0.5, gamma=GAMMA, init_alpha=ALPHA)
+    opt = make_optimizer(cfg)
+    state = SACState(
+        actor_params=ACTOR,
+        critic_params=CRITIC,
+        target_critic_params=TARGET,
+        actor_opt_state=opt.init(ACTOR),
+        critic_opt_state=opt.init(CRITIC),
+        log_alpha=jnp.log(jnp.float32(ALPHA)),
+        alpha_opt_state=opt.init(jnp.log(jnp.float32(ALPHA))),
+        step=jnp.int32(0),
+    )
+    update = make_update(AgentConfig("vpm"), cfg, nets=StubNets())
+    new, m = update(state, BATCH, KEY)
+    np.testing.assert_allclose(m["critic_loss"], 5.447025, rtol=1e-6)
+    np.testing.assert_allclose(m["alpha"], ALPHA, rtol=1e-6)
+    # critic grads (residuals / B): dw1 = -0.545*0.6/2 < 0, dc1 = -3.645*2/2 < 0, dw2 = -2.345*0.6/2 < 0,
+    # dc2 = -1.645*2/2 < 0  ->  every critic parameter rises by lr: w = (2.1, -0.9), c = (0.1, 1.1)
+    np.testing.assert_allclose(new.critic_params["w"], [2.1, -0.9], rtol=1e-5)
+    np.testing.assert_allclose(new.critic_params["c"], [0.1, 1.1], rtol=1e-5)
+    # actor loss with the updated critics: Q2 = -0.9 * 1.5 = -1.35 and -0.9 * 2.1 + 2.2 = 0.31 (the minima)
+    # mean(-0.75 + 1.35, -0.75 - 0.31) = -0.23   (with the old critics it would be 0.05)
+    np.testing.assert_allclose(m["actor_loss"], -0.23, rtol=1e-5)
+    np.testing.assert_allclose(new.actor_params["a"], [0.4, 0.4, 0.4], rtol=1e-5)  # grad 0.9 > 0
+    np.testing.assert_allclose(new.actor_params["lp"], -1.6, rtol=1e-5)  # grad alpha > 0
+    # alpha: grad = -mean(logp + H) = -(-1.5 - 3) = 4.5 > 0  ->  log_alpha falls by lr
+    np.testing.assert_allclose(new.log_alpha, math.log(ALPHA) - 0.1, rtol=1e-5)
+    np.testing.assert_allclose(m["alpha_loss"], -math.log(ALPHA) * -4.5, rtol=1e-5)
+    # Polyak with tau 0.5: 0.5 * new + 0.5 * old target
+    np.testing.assert_allclose(new.target_critic_params["w"], [1.55, 0.55], rtol=1e-5)
+    np.testing.assert_allclose(new.target_critic_params["c"], [0.3, 0.3], rtol=1e-5)
+    assert int(new.step) == 1
+
+
+@pytest.fixture(scope="module")
+def real_update():
+    agent, cfg, T = AgentConfig("vpm", hidden=(32, 32)), SACConfig(batch_size=8), 5
+    nets = make_networks(agent)
+    state = init_state(jax.random.PRNGKey(0), nets, cfg, T)
+    k = jax.random.split(jax.random.PRNGKey(1), 4)
+    batch = {
+        "ee_xy": jax.random.normal(k[0], (8, T + 1, 2)),
+        "z_obj": jax.random.normal(k[1], (8, T + 1, 6)),
+        "z_goal": jax.random.normal(k[2], (8, 6)),
+        "t": jax.random.randint(k[3], (8,), 0, T),
+        "action": jnp.zeros((8, 3)),
+        "reward": -jnp.ones((8,)),
+    }
+    return agent, cfg, state, batch
+
+
+def test_update_with_real_networks(real_update):
+    agent, cfg, state, batch = real_update
+    new, m = jax.jit(make_update(agent, cfg))(state, batch, KEY)
+    assert all(np.isfinite(float(v)) for v in m.values())
+    # Polyak, tau = 0.05, target starts equal to the critics
+    jax.tree.map(
+        lambda t, c, c0: np.testing.assert_allclose(t, 0.05 * c + 0.95 * c0, rtol=1e-5, atol=1e-7),
+        new.target_critic_params,
+        new.critic_params,
+        state.critic_params,
+    )
+    # Adam's first step on log_alpha: -lr * sign(grad), grad = -mean(logp) + 3 = entropy + 3
+    np.testing.assert_allclose(new.log_alpha, -1e-3 * np.sign(float(m["entropy"]) + 3.0), rtol=1e-4)
+    leaves = zip(jax.tree.leaves(new.actor_params), jax.tree.leaves(state.actor_params))
+    moved = [np.abs(np.asarray(n - o)).max() for n, o in leaves]
+    assert all(0 < d <= 1.0001e-3 for d in moved)
+
+
+def test_lr_decays_linearly_to_zero(real_update):
+    agent, cfg, state, batch = real_update
+    cfg = SACConfig(batch_size=8, lr_decay=True)
+    with pytest.raises(ValueError, match="total_updates"):
+        make_optimizer(cfg)
+    # Over 2 updates: lr, lr/2, then 0 — Adam's first steps move by exactly lr * sign(grad).
+    state = init_state(jax.random.PRNGKey(0), make_networks(agent), cfg, 5, total_updates=2)
+    update = jax.jit(make_update(agent, cfg, total_updates=2))
+    s1, _ = update(state, batch, KEY)
+    s2, _ = update(s1, batch, KEY)
+    s3, _ = update(s2, batch, KEY)
+    np.testing.assert_allclose(abs(float(s1.log_alpha - state.log_alpha)), 1e-3, rtol=1e-4)
+    np.testing.assert_allclose(abs(float(s2.log_alpha - s1.log_alpha)), 0.5e-3, rtol=2e-2)
+    jax.tree.map(np.testing.assert_array_equal, s3.actor_params, s2.actor_params)
+    assert float(s3.log_alpha) == float(s2.log_alpha)

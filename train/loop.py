@@ -1,0 +1,272 @@
+"""Jitted rollout + update loop (brax / purejaxrl style) and its host driver.
+
+``make_train(config, adapter)`` returns pure, jittable pieces:
+
+* ``init(key) -> TrainState``
+* ``iteration(TrainState) -> (TrainState, metrics)``: roll out one whole episode in ``num_envs``
+  environments with ``lax.scan`` (the policy acts step by step with its carry; uniform random actions
+  during warm-up), add the episodes to replay, then ``lax.scan`` over
+  ``num_envs * episode_len * utd`` SAC updates (skipped until warm-up is over and replay holds at
+  least ``batch_size`` valid transitions).
+* ``evaluate(actor_params, key)``: ``eval_episodes`` deterministic episodes -> success rate, mean
+  episode reward.
+* ``eval_and_select(TrainState)``: evaluate on the fixed evaluation seeds and keep the best actor
+  params by mean reward (the reference's best-model selection).
+
+``train(key, config, adapter, callback)`` drives these from a host Python loop, one jitted call per
+episode batch, so logging, progress bars and checkpoints sit between iterations. Everything that a
+checkpoint must hold to resume lives in the one ``TrainState`` pytree.
+
+The environment hides behind ``EnvAdapter`` (pure functions), so the same code runs the toy task in
+the tests and the MJX pushing environment:
+
+* ``reset(key, num_envs) -> (env_state, step_obs, episode_info)``, ``step_obs`` = {``ee_xy [N, 2]``,
+  ``z_obj [N, 6]``, ``obj_xy [N, 2]``}, ``episode_info`` = {``z_goal [N, 6]``, ``goal_xy [N, 2]``};
+* ``step(env_state, action [N, 3] in [-1, 1]) -> (env_state, step_obs, invalid [N] bool)``. An
+  episode with any invalid step is stored with ``valid=False`` and never sampled;
+* optionally ``success_tau``, the task's success radius, checked against ``replay.success_tau``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Callable
+
+import flax.struct
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from train import replay
+from train.config import TrainConfig
+from train.networks import Networks, make_networks
+from train.replay import ReplayBuffer
+from train.sac import SACState, init_state, make_update
+
+Params = Any
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvAdapter:
+    reset: Callable[[jax.Array, int], tuple[Any, dict, dict]]
+    step: Callable[[Any, jax.Array], tuple[Any, dict, jax.Array]]
+    # The task's success radius, if the environment defines one: make_train checks that the learner's
+    # reward (ReplayConfig.success_tau) uses the same, so relabelled rewards match the task's.
+    success_tau: float | None = None
+
+
+@flax.struct.dataclass
+class TrainState:
+    sac: SACState
+    buffer: ReplayBuffer
+    key: jax.Array
+    env_steps: jax.Array  # int32, environment steps collected over all envs (whole episode batches)
+    best_actor_params: Params
+    best_eval_reward: jax.Array  # -inf until the first evaluation
+    best_eval_success: jax.Array
+    best_env_steps: jax.Array  # env_steps at which the best params were evaluated (-1: none yet)
+
+
+@dataclasses.dataclass(frozen=True)
+class Trainer:
+    config: TrainConfig
+    networks: Networks
+    init: Callable[[jax.Array], TrainState]
+    collect: Callable  # (actor_params, key, num_envs, random_actions, deterministic) -> (episodes, stats)
+    iteration: Callable[[TrainState], tuple[TrainState, dict]]
+    evaluate: Callable[[Params, jax.Array], dict]
+    eval_and_select: Callable[[TrainState], tuple[TrainState, dict]]
+    eval_key: jax.Array
+    total_updates: int
+
+
+def episode_stats(episodes: dict, success_tau: float) -> dict:
+    """Per-episode sum of sparse rewards and final success; invalid episodes count as failures with
+    the worst reward -T (their ground truth may be garbage)."""
+    T = episodes["action"].shape[1]
+    rewards = replay.sparse_reward(episodes["obj_xy"][:, 1:], episodes["goal_xy"][:, None], success_tau)
+    final_dist = jnp.linalg.norm(episodes["obj_xy"][:, -1] - episodes["goal_xy"], axis=-1)
+    valid = episodes["valid"]
+    ep_reward = jnp.where(valid, jnp.sum(rewards, axis=1), -float(T))
+    success = valid & (final_dist < success_tau)
+    return {
+        "success_rate": jnp.mean(success.astype(jnp.float32)),
+        "mean_reward": jnp.mean(ep_reward),
+        "invalid_rate": jnp.mean((~valid).astype(jnp.float32)),
+    }
+
+
+def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) -> Trainer:
+    loop, sac_cfg = config.loop, config.sac
+    if adapter.success_tau is not None and abs(adapter.success_tau - config.replay.success_tau) > 1e-12:
+        raise ValueError(
+            f"replay.success_tau must equal the environment's success radius {adapter.success_tau}, "
+            f"got {config.replay.success_tau}"
+        )
+    T, N = loop.episode_len, loop.num_envs
+    nets = make_networks(config.agent, action_dim)
+
+    # Iterations that run updates: those ending at or after the warm-up (for the lr decay horizon).
+    first_learning_iteration = max(1, -(-loop.warmup_env_steps // loop.env_steps_per_iteration))
+    learning_iterations = max(0, loop.num_iterations - first_learning_iteration + 1)
+    total_updates = learning_iterations * loop.updates_per_iteration
+    update = make_update(config.agent, sac_cfg, action_dim, total_updates=max(total_updates, 1), nets=nets)
+    # Evaluation always uses the same episodes (SPEC section 7), derived from the config's seed.
+    eval_key = jax.random.fold_in(jax.random.PRNGKey(loop.seed), 0x5E1EC7)
+
+    def init(key: jax.Array) -> TrainState:
+        k_sac, k_loop = jax.random.split(key)
+        sac_state = init_state(k_sac, nets, sac_cfg, T, total_updates=max(total_updates, 1))
+        return TrainState(
+            sac=sac_state,
+            buffer=replay.init(config.replay, T, action_dim),
+            key=k_loop,
+            env_steps=jnp.zeros((), jnp.int32),
+            best_actor_params=jax.tree.map(jnp.copy, sac_state.actor_params),  # no alias (donation)
+            best_eval_reward=jnp.array(-jnp.inf, jnp.float32),
+            best_eval_success=jnp.zeros((), jnp.float32),
+            best_env_steps=jnp.array(-1, jnp.int32),
+        )
+
+    def collect(actor_params, key, num_envs: int, random_actions, deterministic):
+        """One whole episode in ``num_envs`` envs -> (episode records [num_envs, ...], stats)."""
+        k_reset, k_roll = jax.random.split(key)
+        env_state, obs0, info = adapter.reset(k_reset, num_envs)
+
+        def body(c, k):
+            env_state, obs, carry, bad = c
+            k_act, k_rand = jax.random.split(k)
+            policy_action, carry = nets.act(
+                actor_params,
+                carry,
+                {"ee_xy": obs["ee_xy"], "z_obj": obs["z_obj"], "z_goal": info["z_goal"]},
+                k_act,
+                deterministic,
+            )
+            # The carry advances during warm-up too, so it stays in step with the observations.
+            uniform = jax.random.uniform(k_rand, policy_action.shape, minval=-1.0, maxval=1.0)
+            action = jnp.where(random_actions, uniform, policy_action)
+            env_state, obs, invalid = adapter.step(env_state, action)
+            return (env_state, obs, carry, bad | invalid), (obs, action)
+
+        init_c = (env_state, obs0, nets.init_carry(num_envs), jnp.zeros((num_envs,), bool))
+        (_, _, _, bad), (obs_seq, actions) = jax.lax.scan(body, init_c, jax.random.split(k_roll, T))
+
+        def with_reset(name):  # [N, T+1, .]: the reset observation first, then the T step observations
+            return jnp.concatenate([obs0[name][:, None], jnp.swapaxes(obs_seq[name], 0, 1)], axis=1)
+
+        episodes = {
+            "z_obj": with_reset("z_obj"),
+            "ee_xy": with_reset("ee_xy"),
+            "obj_xy": with_reset("obj_xy"),
+            "z_goal": info["z_goal"],
+            "goal_xy": info["goal_xy"],
+            "action": jnp.swapaxes(actions, 0, 1),
+            "valid": ~bad,
+        }
+        return episodes, episode_stats(episodes, config.replay.success_tau)
+
+    def run_updates(sac_state, buffer, key):
+        def body(s, k):
+            k_sample, k_update = jax.random.split(k)
+            batch = replay.sample(buffer, k_sample, sac_cfg.batch_size)
+            return update(s, batch, k_update)
+
+        sac_state, metrics = jax.lax.scan(body, sac_state, jax.random.split(key, loop.updates_per_iteration))
+        return sac_state, jax.tree.map(jnp.mean, metrics)
+
+    def iteration(ts: TrainState) -> tuple[TrainState, dict]:
+        key, k_collect, k_update = jax.random.split(ts.key, 3)
+        random_actions = ts.env_steps < loop.warmup_env_steps
+        episodes, stats = collect(ts.sac.actor_params, k_collect, N, random_actions, False)
+        buffer = replay.add(ts.buffer, episodes)
+        env_steps = ts.env_steps + N * T
+        learn = (env_steps >= loop.warmup_env_steps) & (replay.num_valid_transitions(buffer) >= sac_cfg.batch_size)
+
+        update_metrics_shape = jax.eval_shape(run_updates, ts.sac, buffer, k_update)[1]
+        skip_metrics = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), update_metrics_shape)
+        if loop.updates_per_iteration > 0:
+            sac_state, update_metrics = jax.lax.cond(
+                learn, run_updates, lambda s, b, k: (s, skip_metrics), ts.sac, buffer, k_update
+            )
+        else:
+            sac_state, update_metrics = ts.sac, skip_metrics
+
+        new_ts = ts.replace(sac=sac_state, buffer=buffer, key=key, env_steps=env_steps)
+        metrics = {
+            **{f"train/{k}": v for k, v in stats.items()},
+            **{f"sac/{k}": v for k, v in update_metrics.items()},
+            "learning": learn,
+            "env_steps": env_steps,
+            "updates": sac_state.step,
+            "replay/valid_episodes": replay.num_valid_episodes(buffer),
+        }
+        return new_ts, metrics
+
+    def evaluate(actor_params, key) -> dict:
+        _, stats = collect(actor_params, key, loop.eval_episodes, False, True)
+        return stats
+
+    def eval_and_select(ts: TrainState) -> tuple[TrainState, dict]:
+        stats = evaluate(ts.sac.actor_params, eval_key)
+        better = stats["mean_reward"] > ts.best_eval_reward
+        pick = lambda new, old: jax.tree.map(lambda n, o: jnp.where(better, n, o), new, old)  # noqa: E731
+        ts = ts.replace(
+            best_actor_params=pick(ts.sac.actor_params, ts.best_actor_params),
+            best_eval_reward=pick(stats["mean_reward"], ts.best_eval_reward),
+            best_eval_success=pick(stats["success_rate"], ts.best_eval_success),
+            best_env_steps=pick(ts.env_steps, ts.best_env_steps),
+        )
+        return ts, {**{f"eval/{k}": v for k, v in stats.items()}, "eval/improved": better}
+
+    return Trainer(
+        config=config,
+        networks=nets,
+        init=init,
+        collect=collect,
+        iteration=iteration,
+        evaluate=evaluate,
+        eval_and_select=eval_and_select,
+        eval_key=eval_key,
+        total_updates=total_updates,
+    )
+
+
+def train(
+    key: jax.Array,
+    config: TrainConfig,
+    adapter: EnvAdapter,
+    callback: Callable[[TrainState, dict], bool | None] | None = None,
+    trainer: Trainer | None = None,
+    state: TrainState | None = None,
+) -> tuple[TrainState, list[dict]]:
+    """Run ``config.loop.total_env_steps`` (rounded up to whole episode batches).
+
+    Evaluates every ``eval_every_env_steps`` and after the last iteration, keeping the best actor
+    params by mean reward in the returned state. ``callback(state, metrics)`` runs after every
+    iteration (metrics as Python numbers); returning True stops early. The state passed to the
+    callback is donated to the next iteration: copy what you keep (e.g. ``jax.device_get``).
+    Pass ``trainer`` to reuse compiled functions and ``state`` to resume.
+    """
+    trainer = trainer if trainer is not None else make_train(config, adapter)
+    loop = config.loop
+    ts = state if state is not None else trainer.init(key)
+    # The state is donated, so the replay buffer is updated in place rather than copied each call.
+    iteration = jax.jit(trainer.iteration, donate_argnums=0)
+    eval_and_select = jax.jit(trainer.eval_and_select, donate_argnums=0)
+
+    history: list[dict] = []
+    start = int(ts.env_steps) // loop.env_steps_per_iteration
+    for i in range(start, loop.num_iterations):
+        ts, metrics = iteration(ts)
+        steps, every = (i + 1) * loop.env_steps_per_iteration, loop.eval_every_env_steps
+        crossed = steps // every > (steps - loop.env_steps_per_iteration) // every
+        if crossed or i == loop.num_iterations - 1:
+            ts, eval_metrics = eval_and_select(ts)
+            metrics.update(eval_metrics)
+        metrics = {k: np.asarray(v).item() for k, v in metrics.items()}
+        history.append(metrics)
+        if callback is not None and callback(ts, metrics) is True:
+            break
+    return ts, history
+

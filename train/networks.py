@@ -1,0 +1,260 @@
+"""Actor and twin critic for VPM, Stacked and GRU agents (SPEC section 6), in flax.linen.
+
+Two views of the same networks:
+
+* whole-episode (learner): inputs are episode histories ``ee_xy [B, L, 2]``, ``z_obj [B, L, 6]``,
+  ``z_goal [B, 6]`` and step indices ``idx [B, K]``; the extractor computes features for every step in
+  one pass and the MLP heads run only at the requested steps. After HER relabelling the learner asks for
+  steps t and t+1 with the new goal, so every GRU hidden state is recomputed with that goal.
+* online (rollouts): ``init_carry`` / ``act`` consume one observation per step and carry the extractor's
+  memory (GRU hidden state, the last ``stack`` observations, or nothing for VPM). Both views run the
+  same parameters through the same cell, so they give the same actions (up to float rounding: XLA may
+  order the arithmetic differently for the two shapes; the tests allow 1e-6).
+
+Observation per step: ``ee_xy (2)``, ``z_obj (6)``, ``z_goal (6)``; flat order [ee_xy, z_obj, z_goal].
+The GRU input per step is [z_obj_t, z_goal, ee_xy_t] (SPEC section 6; exported weights assume it).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, Sequence
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+
+from train.config import AgentConfig
+
+LOG_STD_MIN, LOG_STD_MAX = -20.0, 2.0
+OBS_DIM = 14
+ACTION_DIM = 3
+
+Params = Any
+
+
+def _goal_like(z_goal: jax.Array, z_obj: jax.Array) -> jax.Array:
+    # The goal is constant over an episode, so with a time axis it comes without one: broadcast it.
+    if z_goal.ndim < z_obj.ndim:
+        z_goal = jnp.expand_dims(z_goal, -2)
+    return jnp.broadcast_to(z_goal, z_obj.shape[:-1] + z_goal.shape[-1:])
+
+
+def flat_obs(ee_xy: jax.Array, z_obj: jax.Array, z_goal: jax.Array) -> jax.Array:
+    """[..., 14] = [ee_xy, z_obj, z_goal]."""
+    return jnp.concatenate([ee_xy, z_obj, _goal_like(z_goal, z_obj)], axis=-1)
+
+
+def gru_input(ee_xy: jax.Array, z_obj: jax.Array, z_goal: jax.Array) -> jax.Array:
+    """[..., 14] = [z_obj, z_goal, ee_xy], the GRU's input order."""
+    return jnp.concatenate([z_obj, _goal_like(z_goal, z_obj), ee_xy], axis=-1)
+
+
+# ----------------------------------------------------------------------------------------------------
+# Feature extractors. Each has  __call__(ee [B,L,2], z_obj [B,L,6], z_goal [B,6]) -> [B, L, F]  (all
+# steps, causal) and  step(carry, ee [B,2], z_obj [B,6], z_goal [B,6]) -> (carry, [B, F]).
+# ----------------------------------------------------------------------------------------------------
+
+
+class VPMFeatures(nn.Module):
+    """The current 14-number observation."""
+
+    def __call__(self, ee_xy, z_obj, z_goal):
+        return flat_obs(ee_xy, z_obj, z_goal)
+
+    def step(self, carry, ee_xy, z_obj, z_goal):
+        return carry, flat_obs(ee_xy, z_obj, z_goal)
+
+    def initial_carry(self, batch: int) -> jax.Array:
+        return jnp.zeros((batch, 0), jnp.float32)  # no memory; an empty array keeps scan carries uniform
+
+
+class StackedFeatures(nn.Module):
+    """The last ``stack`` observations, oldest first, zero-padded before step 0 (like frame stacking)."""
+
+    stack: int = 5
+
+    def __call__(self, ee_xy, z_obj, z_goal):
+        x = flat_obs(ee_xy, z_obj, z_goal)  # [B, L, 14]
+        length = x.shape[1]
+        padded = jnp.pad(x, ((0, 0), (self.stack - 1, 0), (0, 0)))
+        # Window for step t is padded[t : t + stack]; slicing per offset keeps it causal and cheap.
+        return jnp.concatenate([padded[:, j : j + length] for j in range(self.stack)], axis=-1)
+
+    def step(self, carry, ee_xy, z_obj, z_goal):
+        x = flat_obs(ee_xy, z_obj, z_goal)
+        carry = jnp.concatenate([carry[:, 1:], x[:, None]], axis=1)  # drop the oldest, append the newest
+        return carry, carry.reshape(carry.shape[0], -1)
+
+    def initial_carry(self, batch: int) -> jax.Array:
+        return jnp.zeros((batch, self.stack, OBS_DIM), jnp.float32)
+
+
+class GRUFeatures(nn.Module):
+    """GRU over the episode history (h0 = 0); the feature at step t is the hidden state after step t."""
+
+    hidden: int = 32
+
+    def setup(self):
+        # One scanned cell serves both views: the online step is a scan of length 1, so it runs the
+        # very same parameters and ops as the whole-episode scan.
+        self.cell = nn.scan(
+            nn.GRUCell,
+            variable_broadcast="params",
+            split_rngs={"params": False},
+            in_axes=1,
+            out_axes=1,
+        )(features=self.hidden)
+
+    def __call__(self, ee_xy, z_obj, z_goal):
+        x = gru_input(ee_xy, z_obj, z_goal)  # [B, L, 14]
+        h0 = jnp.zeros((x.shape[0], self.hidden), x.dtype)
+        _, hs = self.cell(h0, x)
+        return hs
+
+    def step(self, carry, ee_xy, z_obj, z_goal):
+        h, _ = self.cell(carry, gru_input(ee_xy, z_obj, z_goal)[:, None])
+        return h, h
+
+    def initial_carry(self, batch: int) -> jax.Array:
+        return jnp.zeros((batch, self.hidden), jnp.float32)
+
+
+def make_extractor(agent: AgentConfig, name: str | None = None) -> nn.Module:
+    if agent.kind == "vpm":
+        return VPMFeatures(name=name)
+    if agent.kind == "stacked":
+        return StackedFeatures(stack=agent.stack, name=name)
+    return GRUFeatures(hidden=agent.gru_hidden, name=name)
+
+
+def take_steps(features: jax.Array, idx: jax.Array) -> jax.Array:
+    """features [B, L, F], idx [B, K] -> [B, K, F]."""
+    return jnp.take_along_axis(features, idx[..., None], axis=1)
+
+
+class MLP(nn.Module):
+    hidden: Sequence[int]
+
+    @nn.compact
+    def __call__(self, x):
+        for h in self.hidden:
+            x = nn.relu(nn.Dense(h)(x))
+        return x
+
+
+class Actor(nn.Module):
+    agent: AgentConfig
+    action_dim: int = ACTION_DIM
+
+    def setup(self):
+        self.features = make_extractor(self.agent)
+        self.mlp = MLP(self.agent.hidden)
+        self.mean_head = nn.Dense(self.action_dim)
+        self.log_std_head = nn.Dense(self.action_dim)
+
+    def head(self, feat):
+        h = self.mlp(feat)
+        return self.mean_head(h), jnp.clip(self.log_std_head(h), LOG_STD_MIN, LOG_STD_MAX)
+
+    def __call__(self, ee_xy, z_obj, z_goal, idx):
+        """Gaussian parameters (mean, log_std) [B, K, A] at steps idx [B, K] of the episodes."""
+        return self.head(take_steps(self.features(ee_xy, z_obj, z_goal), idx))
+
+    def step(self, carry, ee_xy, z_obj, z_goal):
+        carry, feat = self.features.step(carry, ee_xy, z_obj, z_goal)
+        return carry, self.head(feat)
+
+
+class QNetwork(nn.Module):
+    agent: AgentConfig
+
+    @nn.compact
+    def __call__(self, ee_xy, z_obj, z_goal, idx, action):
+        """Q [B, K] of ``action [B, K, A]`` at steps idx [B, K]."""
+        feat = take_steps(make_extractor(self.agent, name="features")(ee_xy, z_obj, z_goal), idx)
+        h = MLP(self.agent.hidden, name="mlp")(jnp.concatenate([feat, action], axis=-1))
+        return nn.Dense(1, name="q_head")(h)[..., 0]
+
+
+# Twin critics: two independent Q networks (own extractor each), stored with a leading axis of 2 and
+# evaluated in one vectorised pass.
+TwinQ = nn.vmap(
+    QNetwork,
+    variable_axes={"params": 0},
+    split_rngs={"params": True},
+    in_axes=None,
+    out_axes=0,
+    axis_size=2,
+)
+
+
+def squash(mean: jax.Array, log_std: jax.Array, noise: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """tanh-squashed Gaussian sample a = tanh(mean + std * noise) and its log-density.
+
+    log p(a) = log N(u; mean, std) - sum log(1 - tanh(u)^2), with the Jacobian term in the stable form
+    log(1 - tanh(u)^2) = 2 (log 2 - u - softplus(-2u)) (no epsilon, exact also where tanh saturates).
+    """
+    u = mean + jnp.exp(log_std) * noise
+    gauss = -0.5 * noise**2 - log_std - 0.5 * math.log(2.0 * math.pi)
+    log_det = 2.0 * (math.log(2.0) - u - jax.nn.softplus(-2.0 * u))
+    return jnp.tanh(u), jnp.sum(gauss - log_det, axis=-1)
+
+
+@dataclasses.dataclass(frozen=True)
+class Networks:
+    """Pure functions over explicit parameters for one agent kind.
+
+    ``episode`` is a mapping with ``ee_xy [B, L, 2]``, ``z_obj [B, L, 6]``, ``z_goal [B, 6]``.
+    """
+
+    agent: AgentConfig
+    action_dim: int = ACTION_DIM
+
+    @property
+    def actor(self) -> Actor:
+        return Actor(self.agent, self.action_dim)
+
+    @property
+    def critic(self) -> nn.Module:
+        return TwinQ(self.agent)
+
+    def init(self, key: jax.Array, episode_len: int) -> tuple[Params, Params]:
+        """(actor_params, critic_params) for episodes of ``episode_len`` steps (``episode_len + 1`` obs)."""
+        ka, kc = jax.random.split(key)
+        ee = jnp.zeros((1, episode_len + 1, 2))
+        z = jnp.zeros((1, episode_len + 1, 6))
+        g = jnp.zeros((1, 6))
+        idx = jnp.zeros((1, 1), jnp.int32)
+        actor = self.actor.init(ka, ee, z, g, idx)
+        critic = self.critic.init(kc, ee, z, g, idx, jnp.zeros((1, 1, self.action_dim)))
+        return actor, critic
+
+    def policy(self, actor_params, episode, idx, noise) -> tuple[jax.Array, jax.Array]:
+        """Actions [B, K, A] and log-probs [B, K] at steps idx [B, K]; ``noise [B, K, A]`` is the
+        standard-normal draw (zeros give the deterministic action tanh(mean))."""
+        mean, log_std = self.actor.apply(actor_params, episode["ee_xy"], episode["z_obj"], episode["z_goal"], idx)
+        return squash(mean, log_std, noise)
+
+    def q(self, critic_params, episode, idx, action) -> jax.Array:
+        """Twin Q values [2, B, K]."""
+        return self.critic.apply(critic_params, episode["ee_xy"], episode["z_obj"], episode["z_goal"], idx, action)
+
+    def init_carry(self, batch: int) -> jax.Array:
+        return make_extractor(self.agent).initial_carry(batch)
+
+    def act(self, actor_params, carry, obs_step, key, deterministic) -> tuple[jax.Array, jax.Array]:
+        """One online step: ``obs_step`` holds ``ee_xy [N, 2]``, ``z_obj [N, 6]``, ``z_goal [N, 6]``.
+        ``deterministic`` may be a Python or a traced bool."""
+        carry, (mean, log_std) = self.actor.apply(
+            actor_params, carry, obs_step["ee_xy"], obs_step["z_obj"], obs_step["z_goal"], method=Actor.step
+        )
+        noise = jax.random.normal(key, mean.shape, mean.dtype)
+        noise = jnp.where(deterministic, jnp.zeros_like(noise), noise)
+        action, _ = squash(mean, log_std, noise)
+        return action, carry
+
+
+def make_networks(agent: AgentConfig, action_dim: int = ACTION_DIM) -> Networks:
+    return Networks(agent, action_dim)

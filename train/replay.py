@@ -1,0 +1,153 @@
+"""On-device ring buffer of whole episodes with HER "future" relabelling (SPEC section 6).
+
+The buffer keeps whole episodes rather than transitions because the GRU agents need the full history
+up to t (and t+1) recomputed with the relabelled goal. Each slot holds one episode of T steps:
+
+    z_obj  [T+1, 6]  latent object code; index 0 is the reset observation
+    ee_xy  [T+1, 2]  end-effector xy
+    obj_xy [T+1, 2]  ground-truth object xy (never observed; only for rewards and relabelling)
+    z_goal [6]       latent goal code
+    goal_xy [2]      ground-truth goal xy
+    action [T, 3]
+    valid  bool      False for empty slots and for episodes the simulator flagged (NaN, out of bounds)
+
+Slots are written at ``count % capacity`` (a scatter, never a roll of the whole buffer). Invalid
+slots have zero sampling weight, so they are never sampled.
+"""
+
+from __future__ import annotations
+
+import flax.struct
+import jax
+import jax.numpy as jnp
+
+from train.config import ReplayConfig
+
+Episodes = dict  # name -> array with a leading episode axis, fields as in the module docstring
+
+
+@flax.struct.dataclass
+class ReplayBuffer:
+    data: Episodes  # every leaf has a leading [capacity] axis
+    count: jax.Array  # int32: episodes ever added; the next write goes to slot count % capacity
+    her_k: int = flax.struct.field(pytree_node=False, default=4)
+    success_tau: float = flax.struct.field(pytree_node=False, default=0.01)
+
+    @property
+    def capacity(self) -> int:
+        return self.data["valid"].shape[0]
+
+    @property
+    def episode_len(self) -> int:
+        return self.data["action"].shape[1]
+
+
+def episode_spec(episode_len: int, action_dim: int = 3) -> dict[str, tuple[tuple[int, ...], jnp.dtype]]:
+    """Shape (without the episode axis) and dtype of each field of an episode record."""
+    T = episode_len
+    return {
+        "z_obj": ((T + 1, 6), jnp.float32),
+        "ee_xy": ((T + 1, 2), jnp.float32),
+        "obj_xy": ((T + 1, 2), jnp.float32),
+        "z_goal": ((6,), jnp.float32),
+        "goal_xy": ((2,), jnp.float32),
+        "action": ((T, action_dim), jnp.float32),
+        "valid": ((), jnp.bool_),
+    }
+
+
+def init(config: ReplayConfig, episode_len: int, action_dim: int = 3) -> ReplayBuffer:
+    capacity = config.capacity_transitions // episode_len
+    if capacity < 1:
+        raise ValueError(
+            f"replay.capacity_transitions must hold at least one episode of {episode_len} steps, "
+            f"got {config.capacity_transitions}"
+        )
+    spec = episode_spec(episode_len, action_dim)
+    data = {k: jnp.zeros((capacity,) + shape, dtype) for k, (shape, dtype) in spec.items()}
+    return ReplayBuffer(data=data, count=jnp.zeros((), jnp.int32), her_k=config.her_k, success_tau=config.success_tau)
+
+
+def add(buffer: ReplayBuffer, episodes: Episodes) -> ReplayBuffer:
+    """Write a batch of n episodes (leading axis n <= capacity) to the next n slots, modulo capacity."""
+    n = episodes["valid"].shape[0]
+    if n > buffer.capacity:
+        raise ValueError(f"cannot add {n} episodes at once to a buffer of {buffer.capacity} episodes")
+    if set(episodes) != set(buffer.data):
+        raise ValueError(f"episode fields {sorted(episodes)} differ from the buffer's {sorted(buffer.data)}")
+    slots = (buffer.count + jnp.arange(n, dtype=jnp.int32)) % buffer.capacity
+    valid = episodes["valid"].astype(bool)
+
+    def write(store, new):
+        new = new.astype(store.dtype)
+        # Zero the records of invalid episodes: they are never sampled, and this keeps NaNs or huge
+        # values from out-of-bounds simulations out of device memory that later gathers touch.
+        keep = valid.reshape((n,) + (1,) * (new.ndim - 1))
+        return store.at[slots].set(jnp.where(keep, new, jnp.zeros_like(new)))
+
+    data = {k: write(buffer.data[k], episodes[k]) for k in buffer.data if k != "valid"}
+    data["valid"] = buffer.data["valid"].at[slots].set(valid)
+    return buffer.replace(data=data, count=buffer.count + n)
+
+
+def num_valid_episodes(buffer: ReplayBuffer) -> jax.Array:
+    return jnp.sum(buffer.data["valid"].astype(jnp.int32))
+
+
+def num_valid_transitions(buffer: ReplayBuffer) -> jax.Array:
+    return num_valid_episodes(buffer) * buffer.episode_len
+
+
+def sparse_reward(obj_xy: jax.Array, goal_xy: jax.Array, success_tau: float) -> jax.Array:
+    """-1 while the object is at least ``success_tau`` from the goal, else 0."""
+    dist = jnp.linalg.norm(obj_xy - goal_xy, axis=-1)
+    return -(dist >= success_tau).astype(jnp.float32)
+
+
+def sample(buffer: ReplayBuffer, key: jax.Array, batch_size: int) -> dict[str, jax.Array]:
+    """Sample transitions (e, t) with HER "future" relabelling.
+
+    e is uniform over the valid stored episodes and t ~ U{0..T-1}. With probability her_k/(her_k+1)
+    the goal is replaced by what was achieved at obs index k ~ U{t+1..T} (SB3's "future" strategy over
+    the transitions t..T-1, each contributing its next observation): both the latent goal
+    ``z_obj[k]`` and the ground-truth goal ``obj_xy[k]``. The reward of (o_t, a_t, o_{t+1}) is
+    recomputed from ``obj_xy[t+1]`` and the (new) ground-truth goal. There are no terminal flags:
+    episodes end by time-limit truncation, so the learner always bootstraps.
+
+    Returns whole episodes (``ee_xy``, ``z_obj``, ``obj_xy`` [B, T+1, .]) with the possibly relabelled
+    ``z_goal [B, 6]`` / ``goal_xy [B, 2]``, plus ``t``, ``action`` (a_t), ``reward``, and for
+    diagnostics ``episode`` (slot index), ``relabelled`` and ``goal_index`` (k, or -1).
+    The caller must make sure the buffer holds at least one valid episode.
+    """
+    T = buffer.episode_len
+    k_ep, k_t, k_her, k_future = jax.random.split(key, 4)
+
+    # Uniform over valid slots, exactly: draw a rank r < n_valid and find the slot holding the r-th
+    # valid episode by a search on the running count of valid slots (integer arithmetic, no weights).
+    valid = buffer.data["valid"].astype(jnp.int32)
+    cum = jnp.cumsum(valid)
+    rank = jax.random.randint(k_ep, (batch_size,), 0, jnp.maximum(cum[-1], 1))
+    e = jnp.searchsorted(cum, rank, side="right").astype(jnp.int32)
+
+    t = jax.random.randint(k_t, (batch_size,), 0, T)
+    relabel = jax.random.uniform(k_her, (batch_size,)) < buffer.her_k / (buffer.her_k + 1)
+    future = jax.random.randint(k_future, (batch_size,), t + 1, T + 1)
+
+    ep = jax.tree.map(lambda x: x[e], buffer.data)
+    rows = jnp.arange(batch_size)
+    z_goal = jnp.where(relabel[:, None], ep["z_obj"][rows, future], ep["z_goal"])
+    goal_xy = jnp.where(relabel[:, None], ep["obj_xy"][rows, future], ep["goal_xy"])
+    reward = sparse_reward(ep["obj_xy"][rows, t + 1], goal_xy, buffer.success_tau)
+    return {
+        "ee_xy": ep["ee_xy"],
+        "z_obj": ep["z_obj"],
+        "obj_xy": ep["obj_xy"],
+        "z_goal": z_goal,
+        "goal_xy": goal_xy,
+        "t": t,
+        "action": ep["action"][rows, t],
+        "reward": reward,
+        "episode": e,
+        "relabelled": relabel,
+        "goal_index": jnp.where(relabel, future, -1),
+    }

@@ -1,0 +1,193 @@
+"""Soft actor-critic losses and update (SPEC section 6), following Stable-Baselines3's SAC.
+
+One update, in SB3's order: the critic step (target from the target critics at s_{t+1} with a fresh
+action from the current actor), then the actor step against the *updated* critics, then the entropy
+coefficient step; all three use the entropy coefficient from before this update. Polyak averaging of
+the target critics after every update. No terminal flags: episodes end by time limit, so the target
+always bootstraps.
+
+Batches come from ``train.replay.sample``: whole episodes plus the transition's step ``t``; networks
+compute history features at t and t+1 with the (possibly relabelled) goal.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import flax.struct
+import jax
+import jax.numpy as jnp
+import optax
+
+from train.config import AgentConfig, SACConfig
+from train.networks import ACTION_DIM, Networks, make_networks
+
+Params = Any
+
+
+@flax.struct.dataclass
+class SACState:
+    actor_params: Params
+    critic_params: Params
+    target_critic_params: Params
+    actor_opt_state: optax.OptState
+    critic_opt_state: optax.OptState
+    log_alpha: jax.Array
+    alpha_opt_state: optax.OptState
+    step: jax.Array  # int32: gradient updates done
+
+
+# ---------------------------------------------------------------------------------------------------
+# Loss arithmetic on plain values (what the hand-computed tests check).
+# ---------------------------------------------------------------------------------------------------
+
+
+def td_target(reward, next_q, next_logp, alpha, gamma):
+    """r + gamma * (min_i Q_targ_i(s', a') - alpha * log pi(a'|s')); ``next_q`` is [2, B]."""
+    return reward + gamma * (jnp.min(next_q, axis=0) - alpha * next_logp)
+
+
+def critic_loss_value(q, target):
+    """SB3's 0.5 * sum_i MSE(Q_i, target) over the twin critics; ``q`` is [2, B]."""
+    return 0.5 * jnp.sum(jnp.mean((q - target[None]) ** 2, axis=-1))
+
+
+def actor_loss_value(logp, q_pi, alpha):
+    """mean(alpha * log pi(a|s) - min_i Q_i(s, a)), a ~ pi(.|s); ``q_pi`` is [2, B]."""
+    return jnp.mean(alpha * logp - jnp.min(q_pi, axis=0))
+
+
+def alpha_loss(log_alpha, logp, target_entropy):
+    """SB3's automatic entropy loss: -mean(log_alpha * (log pi + target_entropy)), log pi held fixed."""
+    return -jnp.mean(log_alpha * jax.lax.stop_gradient(logp + target_entropy))
+
+
+# ---------------------------------------------------------------------------------------------------
+# Loss factories over networks. ``nets`` needs ``policy(params, episode, idx, noise)`` and
+# ``q(params, episode, idx, action)`` (see train.networks.Networks), so tests can pass stubs.
+# ---------------------------------------------------------------------------------------------------
+
+
+def _at(batch, offset):
+    return (batch["t"] + offset)[:, None]  # [B, 1] step index for the networks
+
+
+def make_critic_loss(nets: Networks, gamma: float) -> Callable:
+    def critic_loss(critic_params, target_critic_params, actor_params, alpha, batch, key):
+        B = batch["t"].shape[0]
+        noise = jax.random.normal(key, (B, 1, nets.action_dim))
+        next_action, next_logp = nets.policy(actor_params, batch, _at(batch, 1), noise)
+        next_q = nets.q(target_critic_params, batch, _at(batch, 1), next_action)[..., 0]
+        target = jax.lax.stop_gradient(td_target(batch["reward"], next_q, next_logp[:, 0], alpha, gamma))
+        q = nets.q(critic_params, batch, _at(batch, 0), batch["action"][:, None])[..., 0]
+        return critic_loss_value(q, target), {"q": jnp.mean(q), "target_q": jnp.mean(target)}
+
+    return critic_loss
+
+
+def make_actor_loss(nets: Networks) -> Callable:
+    def actor_loss(actor_params, critic_params, alpha, batch, key):
+        B = batch["t"].shape[0]
+        noise = jax.random.normal(key, (B, 1, nets.action_dim))
+        action, logp = nets.policy(actor_params, batch, _at(batch, 0), noise)
+        q_pi = nets.q(critic_params, batch, _at(batch, 0), action)[..., 0]
+        logp = logp[:, 0]
+        return actor_loss_value(logp, q_pi, alpha), logp
+
+    return actor_loss
+
+
+# ---------------------------------------------------------------------------------------------------
+# Optimiser, state, update.
+# ---------------------------------------------------------------------------------------------------
+
+
+def make_optimizer(sac: SACConfig, total_updates: int | None = None) -> optax.GradientTransformation:
+    """Adam; with ``sac.lr_decay`` the rate falls linearly from ``sac.lr`` to 0 over ``total_updates``."""
+    if not sac.lr_decay:
+        return optax.adam(sac.lr)
+    if not total_updates or total_updates < 1:
+        raise ValueError(f"sac.lr_decay needs total_updates >= 1, got {total_updates!r}")
+    return optax.adam(optax.linear_schedule(sac.lr, 0.0, total_updates))
+
+
+def polyak(online, target, tau):
+    return jax.tree.map(lambda o, t: tau * o + (1.0 - tau) * t, online, target)
+
+
+def init_state(
+    key: jax.Array, nets: Networks, sac: SACConfig, episode_len: int, total_updates: int | None = None
+) -> SACState:
+    actor_params, critic_params = nets.init(key, episode_len)
+    opt = make_optimizer(sac, total_updates)
+    log_alpha = jnp.asarray(jnp.log(sac.init_alpha), jnp.float32)
+    return SACState(
+        actor_params=actor_params,
+        critic_params=critic_params,
+        # A copy, not an alias: the loop donates the state, and XLA rejects one buffer donated twice.
+        target_critic_params=jax.tree.map(jnp.copy, critic_params),
+        actor_opt_state=opt.init(actor_params),
+        critic_opt_state=opt.init(critic_params),
+        log_alpha=log_alpha,
+        alpha_opt_state=opt.init(log_alpha),
+        step=jnp.zeros((), jnp.int32),
+    )
+
+
+def make_update(
+    agent: AgentConfig,
+    sac: SACConfig,
+    action_dim: int = ACTION_DIM,
+    total_updates: int | None = None,
+    nets: Networks | None = None,
+) -> Callable[[SACState, dict, jax.Array], tuple[SACState, dict]]:
+    """``update(state, batch, key) -> (state, metrics)``, one SAC gradient step (pure, jittable)."""
+    nets = nets if nets is not None else make_networks(agent, action_dim)
+    opt = make_optimizer(sac, total_updates)
+    critic_loss = jax.value_and_grad(make_critic_loss(nets, sac.gamma), has_aux=True)
+    actor_loss = jax.value_and_grad(make_actor_loss(nets), has_aux=True)
+    alpha_grad = jax.value_and_grad(alpha_loss)
+    target_entropy = sac.resolved_target_entropy(action_dim)
+
+    def step(params, opt_state, grads):
+        updates, opt_state = opt.update(grads, opt_state, params)
+        return optax.apply_updates(params, updates), opt_state
+
+    def update(state: SACState, batch: dict, key: jax.Array) -> tuple[SACState, dict]:
+        k_next, k_pi = jax.random.split(key)
+        alpha = jnp.exp(state.log_alpha)  # this update's coefficient, fixed before the alpha step
+
+        (c_loss, c_aux), c_grads = critic_loss(
+            state.critic_params, state.target_critic_params, state.actor_params, alpha, batch, k_next
+        )
+        critic_params, critic_opt_state = step(state.critic_params, state.critic_opt_state, c_grads)
+
+        (a_loss, logp), a_grads = actor_loss(state.actor_params, critic_params, alpha, batch, k_pi)
+        actor_params, actor_opt_state = step(state.actor_params, state.actor_opt_state, a_grads)
+
+        al_loss, al_grad = alpha_grad(state.log_alpha, logp, target_entropy)
+        log_alpha, alpha_opt_state = step(state.log_alpha, state.alpha_opt_state, al_grad)
+
+        new_state = SACState(
+            actor_params=actor_params,
+            critic_params=critic_params,
+            target_critic_params=polyak(critic_params, state.target_critic_params, sac.tau),
+            actor_opt_state=actor_opt_state,
+            critic_opt_state=critic_opt_state,
+            log_alpha=log_alpha,
+            alpha_opt_state=alpha_opt_state,
+            step=state.step + 1,
+        )
+        metrics = {
+            "critic_loss": c_loss,
+            "actor_loss": a_loss,
+            "alpha_loss": al_loss,
+            "alpha": alpha,
+            "entropy": -jnp.mean(logp),
+            "q": c_aux["q"],
+            "target_q": c_aux["target_q"],
+            "reward": jnp.mean(batch["reward"]),
+        }
+        return new_state, metrics
+
+    return update
