@@ -180,13 +180,13 @@ class PushEnv(Env):
         info.update(target=target, substeps_left=n, substeps=n, bad_actions=info["bad_actions"] + bad)
         info.update(max_tilt=_F0, max_height_error=_F0)
         if cfg.controller.hold_per_step:
-            m = objects.apply(self.sys, info["params"], self.ids, self.geom_type)
+            m = self.model(info["params"])
             info["held_ctrl"] = ctl.joint_velocity(m, state.pipeline_state, target, self.ids, cfg.controller)
         return state.replace(info=info)
 
     def advance(self, state: State, max_substeps: int | None = None) -> State:
         """Run up to `max_substeps` substeps (all remaining if None) of the current env step."""
-        m = objects.apply(self.sys, state.info["params"], self.ids, self.geom_type)
+        m = self.model(state.info["params"])
         cfg = self.config
         goal_xy = state.info["params"].goal[:2]
         home_z = self.home_flange[2]
