@@ -3,19 +3,19 @@
 ``make_train(config, adapter)`` returns pure, jittable pieces:
 
 * ``init(key) -> TrainState``
-* ``iteration(TrainState) -> (TrainState, metrics)``: roll out one whole episode in ``num_envs``
-  environments with ``lax.scan`` (the policy acts step by step with its carry; uniform random actions
-  during warm-up), add the episodes to replay, then ``lax.scan`` over
+* ``rollout(actor_params, key, random_actions, deterministic) -> (episodes, stats)``: one whole
+  episode in each of ``num_envs`` environments (``lax.scan``; the policy acts step by step with its
+  carry; uniform random actions during warm-up). Evaluation reuses it chunk by chunk.
+* ``learn(state, episodes, key)``: add the episodes to replay, then ``lax.scan`` over
   ``num_envs * episode_len * utd`` SAC updates (skipped until warm-up is over and replay holds at
-  least ``batch_size`` valid transitions).
+  least ``batch_size`` valid transitions). ``iteration`` = ``split_keys`` + ``rollout`` + ``learn``.
 * ``evaluate(actor_params, key)``: ``eval_episodes`` deterministic episodes -> success rate, mean
-  episode reward.
-* ``eval_and_select(TrainState)``: evaluate on the fixed evaluation seeds and keep the best actor
-  params by mean reward (the reference's best-model selection).
+  episode reward; ``select`` keeps the best actor params by mean reward (the reference's selection).
 
-``train(key, config, adapter, callback)`` drives these from a host Python loop, one jitted call per
-episode batch, so logging, progress bars and checkpoints sit between iterations. Everything that a
-checkpoint must hold to resume lives in the one ``TrainState`` pytree.
+``Runner`` jits ``rollout`` once and ``learn`` once and drives them from Python, one call each per
+episode batch, so logging, progress bars and checkpoints sit between iterations; ``train`` is its
+plain loop. Everything a checkpoint must hold to resume lives in the one ``TrainState`` pytree
+(environments are reset at every batch, so no environment state outlives an iteration).
 
 The environment hides behind ``EnvAdapter`` (pure functions), so the same code runs the toy task in
 the tests and the MJX pushing environment:
@@ -73,16 +73,22 @@ class Trainer:
     networks: Networks
     init: Callable[[jax.Array], TrainState]
     collect: Callable  # (actor_params, key, num_envs, random_actions, deterministic) -> (episodes, stats)
-    iteration: Callable[[TrainState], tuple[TrainState, dict]]
+    rollout: Callable  # (actor_params, key, random_actions, deterministic) -> (episodes, stats), num_envs
+    split_keys: Callable[[TrainState], tuple[TrainState, jax.Array, jax.Array]]
+    learn: Callable[[TrainState, dict, jax.Array], tuple[TrainState, dict]]
+    iteration: Callable[[TrainState], tuple[TrainState, dict]]  # split_keys + rollout + learn, in one
     evaluate: Callable[[Params, jax.Array], dict]
+    select: Callable[[TrainState, dict], tuple[TrainState, dict]]
     eval_and_select: Callable[[TrainState], tuple[TrainState, dict]]
     eval_key: jax.Array
+    eval_chunk_key: Callable
+    num_eval_chunks: int
     total_updates: int
 
 
 def episode_stats(episodes: dict, success_tau: float) -> dict:
-    """Per-episode sum of sparse rewards and final success; invalid episodes count as failures with
-    the worst reward -T (their ground truth may be garbage)."""
+    """Per-episode sum of sparse rewards and final success, and their means; invalid episodes count as
+    failures with the worst reward -T (their ground truth may be garbage)."""
     T = episodes["action"].shape[1]
     rewards = replay.sparse_reward(episodes["obj_xy"][:, 1:], episodes["goal_xy"][:, None], success_tau)
     final_dist = jnp.linalg.norm(episodes["obj_xy"][:, -1] - episodes["goal_xy"], axis=-1)
@@ -93,6 +99,19 @@ def episode_stats(episodes: dict, success_tau: float) -> dict:
         "success_rate": jnp.mean(success.astype(jnp.float32)),
         "mean_reward": jnp.mean(ep_reward),
         "invalid_rate": jnp.mean((~valid).astype(jnp.float32)),
+        "episode_success": success,
+        "episode_reward": ep_reward,
+        "episode_valid": valid,
+    }
+
+
+def summarize(stats: dict, n: int | None = None) -> dict:
+    """Means over the first ``n`` episodes of per-episode stats (all if None)."""
+    s = stats["episode_success"][:n].astype(jnp.float32)
+    return {
+        "success_rate": jnp.mean(s),
+        "mean_reward": jnp.mean(stats["episode_reward"][:n]),
+        "invalid_rate": 1.0 - jnp.mean(stats["episode_valid"][:n].astype(jnp.float32)),
     }
 
 
@@ -175,10 +194,19 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
         sac_state, metrics = jax.lax.scan(body, sac_state, jax.random.split(key, loop.updates_per_iteration))
         return sac_state, jax.tree.map(jnp.mean, metrics)
 
-    def iteration(ts: TrainState) -> tuple[TrainState, dict]:
+    def rollout(actor_params, key, random_actions, deterministic):
+        """One episode in each of the ``num_envs`` training envs. The flags are traced, so training
+        rollouts and evaluation chunks share one compiled function (on CPU the environment's
+        compilation is the largest fixed cost of a run)."""
+        return collect(actor_params, key, N, random_actions, deterministic)
+
+    def split_keys(ts: TrainState):
+        """-> (state with its key advanced, collection key, update key)."""
         key, k_collect, k_update = jax.random.split(ts.key, 3)
-        random_actions = ts.env_steps < loop.warmup_env_steps
-        episodes, stats = collect(ts.sac.actor_params, k_collect, N, random_actions, False)
+        return ts.replace(key=key), k_collect, k_update
+
+    def learn(ts: TrainState, episodes: dict, k_update: jax.Array) -> tuple[TrainState, dict]:
+        """Store a batch of episodes and run this batch's SAC updates (none during warm-up)."""
         buffer = replay.add(ts.buffer, episodes)
         env_steps = ts.env_steps + N * T
         learn = (env_steps >= loop.warmup_env_steps) & (replay.num_valid_transitions(buffer) >= sac_cfg.batch_size)
@@ -192,9 +220,8 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
         else:
             sac_state, update_metrics = ts.sac, skip_metrics
 
-        new_ts = ts.replace(sac=sac_state, buffer=buffer, key=key, env_steps=env_steps)
+        new_ts = ts.replace(sac=sac_state, buffer=buffer, env_steps=env_steps)
         metrics = {
-            **{f"train/{k}": v for k, v in stats.items()},
             **{f"sac/{k}": v for k, v in update_metrics.items()},
             "learning": learn,
             "env_steps": env_steps,
@@ -203,12 +230,28 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
         }
         return new_ts, metrics
 
-    def evaluate(actor_params, key) -> dict:
-        _, stats = collect(actor_params, key, loop.eval_episodes, False, True)
-        return stats
+    def iteration(ts: TrainState) -> tuple[TrainState, dict]:
+        ts, k_collect, k_update = split_keys(ts)
+        random_actions = ts.env_steps < loop.warmup_env_steps
+        episodes, stats = rollout(ts.sac.actor_params, k_collect, random_actions, False)
+        ts, metrics = learn(ts, episodes, k_update)
+        return ts, {**{f"train/{k}": v for k, v in summarize(stats).items()}, **metrics}
 
-    def eval_and_select(ts: TrainState) -> tuple[TrainState, dict]:
-        stats = evaluate(ts.sac.actor_params, eval_key)
+    num_eval_chunks = -(-loop.eval_episodes // N)
+
+    def eval_chunk_key(c: int | jax.Array) -> jax.Array:
+        return jax.random.fold_in(eval_key, c)
+
+    def evaluate(actor_params, key) -> dict:
+        """``eval_episodes`` deterministic episodes, run as ceil(eval_episodes / num_envs) chunks of
+        ``num_envs`` (chunk c uses fold_in(key, c)); means over the first ``eval_episodes``."""
+        keys = jax.vmap(lambda c: jax.random.fold_in(key, c))(jnp.arange(num_eval_chunks))
+        stats = jax.lax.map(lambda k: rollout(actor_params, k, False, True)[1], keys)
+        flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), stats)
+        return summarize(flat, loop.eval_episodes)
+
+    def select(ts: TrainState, stats: dict) -> tuple[TrainState, dict]:
+        """Keep the actor params with the best mean evaluation reward so far."""
         better = stats["mean_reward"] > ts.best_eval_reward
         pick = lambda new, old: jax.tree.map(lambda n, o: jnp.where(better, n, o), new, old)  # noqa: E731
         ts = ts.replace(
@@ -219,17 +262,68 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
         )
         return ts, {**{f"eval/{k}": v for k, v in stats.items()}, "eval/improved": better}
 
+    def eval_and_select(ts: TrainState) -> tuple[TrainState, dict]:
+        return select(ts, evaluate(ts.sac.actor_params, eval_key))
+
     return Trainer(
         config=config,
         networks=nets,
         init=init,
         collect=collect,
+        rollout=rollout,
+        split_keys=split_keys,
+        learn=learn,
         iteration=iteration,
         evaluate=evaluate,
+        select=select,
         eval_and_select=eval_and_select,
         eval_key=eval_key,
+        eval_chunk_key=eval_chunk_key,
+        num_eval_chunks=num_eval_chunks,
         total_updates=total_updates,
     )
+
+
+class Runner:
+    """Host-side driver of a ``Trainer``: two compiled functions, ``rollout`` (shared by training and
+    evaluation) and ``learn`` (donating the state, so the replay buffer is updated in place)."""
+
+    def __init__(self, trainer: Trainer):
+        self.trainer = trainer
+        self.rollout = jax.jit(trainer.rollout)
+        self.learn = jax.jit(trainer.learn, donate_argnums=0)
+        self.select = jax.jit(trainer.select, donate_argnums=0)
+
+    def iteration(self, ts: TrainState) -> tuple[TrainState, dict]:
+        warmup = self.trainer.config.loop.warmup_env_steps
+        ts, k_collect, k_update = self.trainer.split_keys(ts)
+        random_actions = jnp.asarray(int(ts.env_steps) < warmup)
+        episodes, stats = self.rollout(ts.sac.actor_params, k_collect, random_actions, jnp.asarray(False))
+        ts, metrics = self.learn(ts, episodes, k_update)
+        return ts, {**{f"train/{k}": v for k, v in summarize(stats).items()}, **metrics}
+
+    def evaluate(self, actor_params, key: jax.Array | None = None) -> dict:
+        """The trainer's ``evaluate`` through the shared rollout; per-episode arrays included."""
+        t = self.trainer
+        key = t.eval_key if key is None else key
+        chunks = [self.rollout(actor_params, jax.random.fold_in(key, c), jnp.asarray(False), jnp.asarray(True))[1]
+                  for c in range(t.num_eval_chunks)]
+        n = t.config.loop.eval_episodes
+        flat = {k: jnp.concatenate([c[k] for c in chunks])[:n] for k in chunks[0] if k.startswith("episode_")}
+        return {**summarize(flat), **flat}
+
+    def eval_and_select(self, ts: TrainState) -> tuple[TrainState, dict]:
+        stats = self.evaluate(ts.sac.actor_params)
+        ts, metrics = self.select(ts, {k: stats[k] for k in ("success_rate", "mean_reward", "invalid_rate")})
+        return ts, metrics
+
+    def is_eval_iteration(self, i: int) -> bool:
+        """Evaluate after iteration ``i`` (0-based) when it crosses a multiple of eval_every_env_steps,
+        and after the last one."""
+        loop = self.trainer.config.loop
+        steps, every = (i + 1) * loop.env_steps_per_iteration, loop.eval_every_env_steps
+        crossed = steps // every > (steps - loop.env_steps_per_iteration) // every
+        return crossed or i == loop.num_iterations - 1
 
 
 def train(
@@ -239,6 +333,7 @@ def train(
     callback: Callable[[TrainState, dict], bool | None] | None = None,
     trainer: Trainer | None = None,
     state: TrainState | None = None,
+    runner: Runner | None = None,
 ) -> tuple[TrainState, list[dict]]:
     """Run ``config.loop.total_env_steps`` (rounded up to whole episode batches).
 
@@ -246,27 +341,22 @@ def train(
     params by mean reward in the returned state. ``callback(state, metrics)`` runs after every
     iteration (metrics as Python numbers); returning True stops early. The state passed to the
     callback is donated to the next iteration: copy what you keep (e.g. ``jax.device_get``).
-    Pass ``trainer`` to reuse compiled functions and ``state`` to resume.
+    Pass ``trainer`` / ``runner`` to reuse compiled functions and ``state`` to resume.
     """
-    trainer = trainer if trainer is not None else make_train(config, adapter)
+    if runner is None:
+        runner = Runner(trainer if trainer is not None else make_train(config, adapter))
     loop = config.loop
-    ts = state if state is not None else trainer.init(key)
-    # The state is donated, so the replay buffer is updated in place rather than copied each call.
-    iteration = jax.jit(trainer.iteration, donate_argnums=0)
-    eval_and_select = jax.jit(trainer.eval_and_select, donate_argnums=0)
+    ts = state if state is not None else runner.trainer.init(key)
 
     history: list[dict] = []
     start = int(ts.env_steps) // loop.env_steps_per_iteration
     for i in range(start, loop.num_iterations):
-        ts, metrics = iteration(ts)
-        steps, every = (i + 1) * loop.env_steps_per_iteration, loop.eval_every_env_steps
-        crossed = steps // every > (steps - loop.env_steps_per_iteration) // every
-        if crossed or i == loop.num_iterations - 1:
-            ts, eval_metrics = eval_and_select(ts)
+        ts, metrics = runner.iteration(ts)
+        if runner.is_eval_iteration(i):
+            ts, eval_metrics = runner.eval_and_select(ts)
             metrics.update(eval_metrics)
         metrics = {k: np.asarray(v).item() for k, v in metrics.items()}
         history.append(metrics)
         if callback is not None and callback(ts, metrics) is True:
             break
     return ts, history
-

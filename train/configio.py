@@ -1,0 +1,67 @@
+"""Typed configs to and from JSON-able dicts (run records, checkpoints, exported policies).
+
+`from_dict` rebuilds nested frozen dataclasses from their field types, turns JSON lists back into the
+tuples the configs hold, and rejects unknown or missing fields by name, so a record written by another
+version fails loudly instead of silently training something else.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import typing
+from typing import Any
+
+
+def to_dict(obj) -> dict:
+    """JSON-normalised (tuples become lists), so a dict read back from disk compares equal."""
+    return json.loads(json.dumps(dataclasses.asdict(obj)))
+
+
+def _convert(tp, value, where: str):
+    origin = typing.get_origin(tp)
+    if dataclasses.is_dataclass(tp):
+        return from_dict(tp, value, where)
+    if tp is tuple or origin is tuple:
+        if not isinstance(value, (list, tuple)):
+            raise ValueError(f"{where} must be a list, got {value!r}")
+        return tuple(value)
+    if origin in (typing.Union, getattr(__import__("types"), "UnionType", None)):
+        if value is None:
+            return None
+        inner = [a for a in typing.get_args(tp) if a is not type(None)]
+        return _convert(inner[0], value, where) if len(inner) == 1 else value
+    return value
+
+
+def from_dict(cls, data: Any, where: str = ""):
+    """Rebuild dataclass `cls` from `data` (as written by `to_dict`)."""
+    name = where or cls.__name__
+    if not isinstance(data, dict):
+        raise ValueError(f"{name} must be a mapping, got {type(data).__name__}")
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
+    unknown = sorted(set(data) - set(fields))
+    if unknown:
+        raise ValueError(f"{name} has unknown fields {unknown}")
+    kwargs = {}
+    for key, f in fields.items():
+        if key not in data:
+            if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+                raise ValueError(f"{name} is missing the field {key!r}")
+            continue
+        kwargs[key] = _convert(hints[key], data[key], f"{name}.{key}")
+    return cls(**kwargs)
+
+
+def differences(a: dict, b: dict, prefix: str = "") -> list[str]:
+    """Dotted paths where two config dicts differ (for 'checkpoint does not match this run')."""
+    out = []
+    for k in sorted(set(a) | set(b)):
+        path = f"{prefix}{k}"
+        va, vb = a.get(k, "<missing>"), b.get(k, "<missing>")
+        if isinstance(va, dict) and isinstance(vb, dict):
+            out += differences(va, vb, path + ".")
+        elif va != vb:
+            out.append(f"{path}: {va!r} != {vb!r}")
+    return out

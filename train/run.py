@@ -1,0 +1,331 @@
+"""A training run on disk: run directory, logs, orbax checkpoints, exact resume, saved policies.
+
+Run directory layout (``mjx-push train --run-dir DIR``):
+
+    config.json          the full RunConfig (every value, not just the preset name)
+    metrics.csv          one row per episode batch (env steps, throughput, losses, evaluations)
+    tb/                  TensorBoard scalars, x axis = environment steps
+    checkpoints/<step>/  orbax: the whole TrainState (params, optimiser states, replay buffer, RNG key,
+                         counters, best params) + a JSON record with the config; step = env steps
+    best_policy.msgpack  actor params with the best evaluation mean reward, and the encoder
+    best_policy.json     what they are: agent, configs, evaluation scores, encoder record
+    final_policy.*       the same for the last actor params
+    summary.json         wall time, compile time, throughput, best scores
+
+Environments are reset at every episode batch, so a checkpoint between batches holds everything a
+run needs to continue: resuming replays the remaining batches exactly (bitwise on CPU).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import orbax.checkpoint as ocp
+from flax import serialization
+
+from mjx_push import encoder as enc
+from train import configio
+from train.loop import EnvAdapter, Runner, TrainState, make_train
+from train.presets import RunConfig
+
+POLICY_FORMAT = "mjx-push-policy"
+POLICY_VERSION = 1
+CHECKPOINT_FORMAT = "mjx-push-checkpoint"
+CHECKPOINT_VERSION = 1
+
+
+def config_dict(cfg: RunConfig) -> dict:
+    return configio.to_dict(cfg)
+
+
+def config_from_dict(d: dict) -> RunConfig:
+    return configio.from_dict(RunConfig, d, "config")
+
+
+def load_config(path: Path) -> RunConfig:
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"run config not found: {path}")
+    try:
+        return config_from_dict(json.loads(path.read_text()))
+    except json.JSONDecodeError as e:
+        raise ValueError(f"run config {path} is not valid JSON: {e}") from None
+
+
+# --- checkpoints -------------------------------------------------------------------------------------
+class Checkpoints:
+    """Orbax checkpoints of a TrainState, keyed by environment steps, the last `keep` kept."""
+
+    def __init__(self, directory: Path, keep: int = 2):
+        self.directory = Path(directory).absolute()
+        options = ocp.CheckpointManagerOptions(max_to_keep=keep, enable_async_checkpointing=False, create=True)
+        self.manager = ocp.CheckpointManager(self.directory, options=options)
+
+    def save(self, state: TrainState, config: RunConfig, extra: dict) -> int:
+        step = int(state.env_steps)
+        meta = {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "config": config_dict(config), **extra}
+        self.manager.save(step, args=ocp.args.Composite(state=ocp.args.StandardSave(state),
+                                                        meta=ocp.args.JsonSave(meta)), force=True)
+        self.manager.wait_until_finished()
+        return step
+
+    def latest(self) -> int | None:
+        return self.manager.latest_step()
+
+    def restore(self, template: TrainState, config: RunConfig, step: int | None = None) -> tuple[TrainState, dict]:
+        """The checkpoint at `step` (default latest). Raises ValueError with the reason when there is
+        none, when it was made by another configuration, or when its arrays are unreadable."""
+        step = self.latest() if step is None else step
+        if step is None:
+            raise ValueError(f"no checkpoint in {self.directory}")
+        try:
+            meta = self.manager.restore(step, args=ocp.args.Composite(meta=ocp.args.JsonRestore()))["meta"]
+        except Exception as e:
+            raise ValueError(f"checkpoint {self.directory}/{step} is corrupt (its record cannot be read): {e}") from None
+        if not isinstance(meta, dict) or meta.get("format") != CHECKPOINT_FORMAT:
+            raise ValueError(f"{self.directory}/{step} is not an mjx-push checkpoint")
+        if meta.get("version") != CHECKPOINT_VERSION:
+            raise ValueError(f"checkpoint {self.directory}/{step} has format version {meta.get('version')}, "
+                             f"this mjx-push reads version {CHECKPOINT_VERSION}")
+        diff = configio.differences(meta.get("config", {}), config_dict(config))
+        if diff:
+            raise ValueError(f"checkpoint {self.directory}/{step} was made with a different configuration: "
+                             + "; ".join(diff[:6]))
+        abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, template)
+        try:
+            state = self.manager.restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract)))["state"]
+        except Exception as e:
+            raise ValueError(f"checkpoint {self.directory}/{step} is corrupt or does not match this run's "
+                             f"state (shapes, dtypes or structure): {type(e).__name__}: {str(e)[:300]}") from None
+        return state, meta
+
+
+# --- saved policies ----------------------------------------------------------------------------------
+def save_policy(path: Path, config: RunConfig, actor_params, encoder_params, scores: dict) -> None:
+    """`path`.msgpack (actor + encoder params) and `path`.json (what they are)."""
+    path = Path(path)
+    blob = {"actor": jax.device_get(actor_params), "encoder": jax.device_get(encoder_params)}
+    path.with_suffix(".msgpack").write_bytes(serialization.msgpack_serialize(blob))
+    record = {
+        "format": POLICY_FORMAT,
+        "version": POLICY_VERSION,
+        "agent": config.agent,
+        "config": config_dict(config),
+        "scores": scores,
+        "encoder_record": {k: v for k, v in enc.load_record(config.encoder and Path(config.encoder)).items()
+                           if k != "curve"},
+    }
+    path.with_suffix(".json").write_text(json.dumps(record, indent=2) + "\n")
+
+
+@dataclass(frozen=True)
+class Policy:
+    config: RunConfig
+    actor_params: Any
+    encoder_params: Any
+    scores: dict
+
+
+def load_policy(path: Path) -> Policy:
+    """A policy saved by `save_policy` (give either file or the stem). Clear errors for missing,
+    corrupt or mismatched files."""
+    path = Path(path)
+    stem = path.with_suffix("") if path.suffix in (".msgpack", ".json") else path
+    blob_path, rec_path = stem.with_suffix(".msgpack"), stem.with_suffix(".json")
+    for p in (blob_path, rec_path):
+        if not p.is_file():
+            raise ValueError(f"policy file not found: {p}")
+    try:
+        record = json.loads(rec_path.read_text())
+    except json.JSONDecodeError as e:
+        raise ValueError(f"policy record {rec_path} is not valid JSON: {e}") from None
+    if record.get("format") != POLICY_FORMAT:
+        raise ValueError(f"{rec_path} is not an mjx-push policy record")
+    if record.get("version") != POLICY_VERSION:
+        raise ValueError(f"policy {rec_path} has format version {record.get('version')}, expected {POLICY_VERSION}")
+    config = config_from_dict(record["config"])
+    try:
+        blob = serialization.msgpack_restore(blob_path.read_bytes())
+    except Exception as e:
+        raise ValueError(f"policy weights {blob_path} are corrupt: {e}") from None
+    # Check every array against freshly initialised networks of the recorded agent.
+    from train.networks import make_networks
+
+    nets = make_networks(config.train.agent)
+    actor_t, _ = jax.eval_shape(lambda: nets.init(jax.random.PRNGKey(0), config.train.loop.episode_len))
+    encoder_t = enc._template()
+    for name, template in (("actor", actor_t), ("encoder", encoder_t)):
+        if name not in blob:
+            raise ValueError(f"policy weights {blob_path} have no {name!r} parameters")
+        want = jax.tree.map(lambda s: s.shape, template)
+        try:
+            got = jax.tree.map(lambda a: np.shape(a), blob[name])
+            same = jax.tree.structure(want) == jax.tree.structure(got) and want == got
+        except Exception:
+            same = False
+        if not same:
+            raise ValueError(f"policy weights {blob_path}: the {name!r} parameters do not match a "
+                             f"{config.agent} network")
+    to_jnp = lambda t: jax.tree.map(jnp.asarray, t)  # noqa: E731
+    return Policy(config, to_jnp(blob["actor"]), to_jnp(blob["encoder"]), record.get("scores", {}))
+
+
+# --- metric logs -------------------------------------------------------------------------------------
+class MetricLog:
+    """metrics.csv + TensorBoard. On resume, rows past the checkpoint are dropped (they will be redone)."""
+
+    def __init__(self, root: Path, resume_env_steps: int | None):
+        from tensorboardX import SummaryWriter
+
+        self.csv_path = root / "metrics.csv"
+        self.rows: list[dict] = []
+        if resume_env_steps is not None and self.csv_path.is_file():
+            with self.csv_path.open() as f:
+                self.rows = [r for r in csv.DictReader(f) if float(r["env_steps"]) <= resume_env_steps]
+        self.columns: list[str] = list(self.rows[0].keys()) if self.rows else []
+        self.tb = SummaryWriter(str(root / "tb"), purge_step=resume_env_steps)
+
+    def write(self, metrics: dict) -> None:
+        new = [k for k in metrics if k not in self.columns]
+        self.columns += new
+        self.rows.append(metrics)
+        with self.csv_path.open("w", newline="") as f:  # rewritten: columns may grow (evaluations)
+            w = csv.DictWriter(f, fieldnames=self.columns)
+            w.writeheader()
+            w.writerows(self.rows)
+        step = int(metrics["env_steps"])
+        for k, v in metrics.items():
+            if k != "env_steps" and isinstance(v, (int, float)) and v == v:
+                self.tb.add_scalar(k, v, step)
+        self.tb.flush()
+
+    def close(self):
+        self.tb.close()
+
+
+# --- the run -----------------------------------------------------------------------------------------
+def prepare_dir(run_dir: Path, cfg: RunConfig, resume: bool) -> None:
+    run_dir = Path(run_dir)
+    has_ckpt = (run_dir / "checkpoints").is_dir() and any((run_dir / "checkpoints").iterdir())
+    if resume:
+        if not has_ckpt:
+            raise ValueError(f"--resume: no checkpoint in {run_dir / 'checkpoints'}")
+        saved = load_config(run_dir / "config.json")
+        diff = configio.differences(config_dict(saved), config_dict(cfg))
+        if diff:
+            raise ValueError(f"--resume: {run_dir} was started with a different configuration: " + "; ".join(diff[:6]))
+    else:
+        if has_ckpt or (run_dir / "metrics.csv").exists():
+            raise ValueError(f"run directory {run_dir} already holds a run; pass --resume to continue it or "
+                             "choose another --run-dir")
+        run_dir.mkdir(parents=True, exist_ok=True)
+        (run_dir / "config.json").write_text(json.dumps(config_dict(cfg), indent=2) + "\n")
+
+
+def run(
+    cfg: RunConfig,
+    run_dir: Path,
+    *,
+    resume: bool = False,
+    adapter: EnvAdapter | None = None,
+    checkpoint_every: int = 10,
+    stop_after: int | None = None,
+    on_iteration: Callable[[dict], None] | None = None,
+) -> tuple[dict, TrainState]:
+    """Train `cfg` in `run_dir`. Checkpoints after every `checkpoint_every` batches, at every
+    evaluation and at the end. `stop_after`: stop (as if killed) after that many batches of this call.
+    `adapter` replaces the MJX task (tests use the toy task). Returns (summary, final state)."""
+    run_dir = Path(run_dir)
+    prepare_dir(run_dir, cfg, resume)
+    encoder_params = enc.load(cfg.encoder and Path(cfg.encoder))
+    if adapter is None:
+        from train.push_task import make_push_adapter
+
+        adapter = make_push_adapter(cfg.env, encoder_params)
+    trainer = make_train(cfg.train, adapter)
+    runner = Runner(trainer)
+    loop = cfg.train.loop
+    ckpts = Checkpoints(run_dir / "checkpoints")
+    state = trainer.init(jax.random.PRNGKey(loop.seed))
+    resumed_from = None
+    if resume:
+        state, meta = ckpts.restore(state, cfg)
+        resumed_from = int(state.env_steps)
+    log = MetricLog(run_dir, resumed_from)
+
+    t_start = time.perf_counter()
+    first_call_s: float | None = None
+    start = int(state.env_steps) // loop.env_steps_per_iteration
+    done_here = 0
+    try:
+        for i in range(start, loop.num_iterations):
+            t0 = time.perf_counter()
+            state, metrics = runner.iteration(state)
+            if runner.is_eval_iteration(i):
+                state, eval_metrics = runner.eval_and_select(state)
+                metrics.update(eval_metrics)
+            metrics = {k: np.asarray(v).item() for k, v in metrics.items()}
+            dt = time.perf_counter() - t0
+            if first_call_s is None:
+                first_call_s = dt
+            metrics["wall_s"] = time.perf_counter() - t_start
+            metrics["iteration_s"] = dt
+            metrics["env_steps_per_s"] = loop.env_steps_per_iteration / dt
+            metrics["updates_per_s"] = (loop.updates_per_iteration / dt) if metrics["learning"] else 0.0
+            log.write(metrics)
+            if on_iteration is not None:
+                on_iteration(metrics)
+            done_here += 1
+            last = i == loop.num_iterations - 1
+            if last or "eval/mean_reward" in metrics or (i + 1) % checkpoint_every == 0:
+                ckpts.save(state, cfg, {"history_rows": len(log.rows)})
+            if stop_after is not None and done_here >= stop_after and not last:
+                return {"stopped_at_env_steps": int(state.env_steps)}, state
+    finally:
+        log.close()
+
+    scores = {
+        "best_eval_mean_reward": float(state.best_eval_reward),
+        "best_eval_success_rate": float(state.best_eval_success),
+        "best_env_steps": int(state.best_env_steps),
+    }
+    save_policy(run_dir / "best_policy", cfg, state.best_actor_params, encoder_params, scores)
+    last_eval = next((r for r in reversed(log.rows) if r.get("eval/mean_reward") not in (None, "")), {})
+    save_policy(run_dir / "final_policy", cfg, state.sac.actor_params, encoder_params,
+                {"eval_mean_reward": float(last_eval.get("eval/mean_reward", np.nan)),
+                 "eval_success_rate": float(last_eval.get("eval/success_rate", np.nan)),
+                 "env_steps": int(state.env_steps)})
+    rows = log.rows
+    steady = [float(r["iteration_s"]) for r in rows[1:] if r.get("eval/mean_reward") in (None, "")]
+    summary = {
+        **scores,
+        "env_steps": int(state.env_steps),
+        "updates": int(state.sac.step),
+        "wall_s": time.perf_counter() - t_start,
+        "first_batch_s": first_call_s,
+        "steady_env_steps_per_s": (loop.env_steps_per_iteration / np.mean(steady)) if steady else None,
+        "resumed_from_env_steps": resumed_from,
+        "run_dir": str(run_dir),
+    }
+    (run_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    return summary, state
+
+
+def latest_state(run_dir: Path, cfg: RunConfig, adapter: EnvAdapter | None = None) -> TrainState:
+    """The TrainState of the run's latest checkpoint (for inspection and tests)."""
+    trainer = make_train(cfg.train, adapter if adapter is not None else _dummy_adapter(cfg))
+    return Checkpoints(Path(run_dir) / "checkpoints").restore(trainer.init(jax.random.PRNGKey(0)), cfg)[0]
+
+
+def _dummy_adapter(cfg: RunConfig) -> EnvAdapter:
+    # make_train only needs the adapter to build rollouts, which restoring never calls.
+    return EnvAdapter(reset=None, step=None, success_tau=cfg.env.success_tau)
+
