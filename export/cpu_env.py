@@ -1,0 +1,462 @@
+"""The pushing task on CPU MuJoCo (`mujoco.MjData` + `mujoco.mj_step`): one environment, no JAX in the loop.
+
+It is the MJX `mjx_push.env.PushEnv` re-run in C MuJoCo, for evaluation with a real rendered camera, for
+Gymnasium users (`export.gym_env`) and as the simulated robot behind the deployment loop
+(`export.deploy`). Everything that defines the task is shared or ported line for line:
+
+- the scene: `mjx_push.scene.build_model`, with the object's size, mass, inertia and friction written into
+  the `MjModel` as `mjx_push.objects.apply` does for MJX, then `mujoco.mj_setConst` (which derives the
+  inverse weights exactly instead of the MJX approximation);
+- the configuration: `mjx_push.env.EnvConfig` (objects, controller, solver, action scale, substep range,
+  episode length, tau, observation noise, workspace, out-of-bounds band);
+- the step: action sanitising, workspace clip and a_s -> substeps decoding as in `PushEnv.begin_step`
+  (decoded in float32, like the MJX environment, so the same a_s gives the same count); the controller
+  (`export.controller_np`, a NumPy port) at every 1 ms substep or held per step; the correction counters
+  (`export.corrections_np`) at every substep; the validity check of `PushEnv._valid`, an invalid state
+  being replaced by the episode's initial state. One addition: C MuJoCo silently resets `MjData` to the
+  model's default pose when qpos, qvel or qacc become non-finite or huge (MJX lets the NaN through), so a
+  step during which MuJoCo raised one of those warnings is invalid as well.
+- substep ordering: the controller reads the kinematics that the previous `mj_step` left in `MjData`
+  (mj_step computes them before integrating), exactly as the MJX loop reads `mjx.step`'s output; the
+  flange xy of the observation and of `info["ee_xy_true"]` comes from the same place (one substep old).
+
+Masks (`mask_source`):
+- "render": the "under_table" camera rendered by `mujoco.Renderer` at 64x64, colour-filtered with
+  `render_filter` (the object's emissive blue: B > 128, R < 80, G < 80; nothing else in the scene is
+  blue, the glass table is invisible and the arm is grey). Needs an OpenGL context: set MUJOCO_GL=egl
+  (before mujoco is imported) on a machine without a display.
+- "analytic": `export.masks_np`, the NumPy port of `mjx_push.masks` (no renderer, no JAX).
+- "auto" (default): "render" if a renderer can be created, else "analytic" (see `mask_source_used`).
+
+Object parameters are drawn with `mjx_push.objects.sample` (JAX, jitted once per shape and config) from
+a key seeded by the environment's NumPy generator, unless `reset` is given an `ObjectParams`.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import warnings
+import weakref
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from export import controller_np as ctl
+from export import corrections_np as corr
+from export import masks_np
+from mjx_push import objects, scene
+from mjx_push.env import EnvConfig
+
+MASK_SOURCES = ("render", "analytic", "auto")
+CAMERAS = ("under_table", "top")
+# Colour filter for the rendered under-table view: the object's material is pure blue and emissive, so
+# it renders at about (0, 0, 255) whatever the lighting; grey arm and rod pixels fail the R/G bound.
+BLUE_MIN = 128  # B > BLUE_MIN
+RED_GREEN_MAX = 80  # R < RED_GREEN_MAX and G < RED_GREEN_MAX
+MAX_RENDER_SIZE = (480, 640)  # (height, width): the scene's offscreen buffer
+_UNSTABLE_WARNINGS = (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
+                      mujoco.mjtWarning.mjWARN_BADQACC)
+
+
+# The first failure to create a renderer is remembered for the whole process: after one failed attempt
+# (e.g. MUJOCO_GL=glfw without a display) MuJoCo 4.0 aborts the interpreter on the next one.
+_render_failure: str | None = None
+
+
+def _new_renderer(m: mujoco.MjModel, h: int, w: int) -> mujoco.Renderer:
+    global _render_failure
+    if _render_failure is not None:
+        raise RuntimeError(f"MuJoCo renderer unavailable in this process ({_render_failure})")
+    try:
+        return mujoco.Renderer(m, h, w)
+    except Exception as e:
+        _render_failure = f"{type(e).__name__}: {e}"
+        raise
+
+
+def renderer_available() -> bool:
+    """Whether `mujoco.Renderer` works in this process (tries at most once after a failure)."""
+    try:
+        _new_renderer(scene.build_model("box"), 8, 8).close()
+    except Exception:
+        return False
+    return True
+
+
+def render_filter(rgb: np.ndarray) -> np.ndarray:
+    """Object mask (H, W) bool from a rendered under-table RGB frame (H, W, 3) uint8."""
+    rgb = np.asarray(rgb).astype(np.int32)
+    return (rgb[..., 2] > BLUE_MIN) & (rgb[..., 0] < RED_GREEN_MAX) & (rgb[..., 1] < RED_GREEN_MAX)
+
+
+def sanitize_action(action: np.ndarray) -> tuple[np.ndarray, bool]:
+    """As `mjx_push.env.sanitize_action`: non-finite components become 0 (reported), the rest are clipped
+    to [-1, 1]."""
+    finite = np.isfinite(action)
+    return np.clip(np.where(finite, action, 0.0), -1.0, 1.0), not bool(finite.all())
+
+
+def decode_substeps(a_s: float, substeps: tuple[int, int]) -> int:
+    """As `mjx_push.env.decode_substeps`: a_s in [-1, 1] -> integer substeps in [low, high], linear and
+    truncated, evaluated in float32 like the MJX environment so both give the same count."""
+    lo, hi = substeps
+    f = np.float32
+    a = f(np.clip(f(a_s), f(-1.0), f(1.0)))
+    n = np.floor(f(lo) + (a + f(1.0)) * f(0.5) * f(hi - lo))
+    return int(np.clip(n, lo, hi))
+
+
+def flange_target(ee_xy: np.ndarray, a_xy: np.ndarray, action_scale: float, workspace_x: tuple[float, float],
+                  workspace_y: tuple[float, float], home_z: float) -> np.ndarray:
+    """The flange target (3,) of an action, as `PushEnv.begin_step`: ee_xy + a_xy * action_scale clipped to
+    the workspace, z at the home flange height. Shared by the simulator and the deployment loop."""
+    xy = np.asarray(ee_xy, np.float64)[:2] + np.asarray(a_xy, np.float64)[:2] * action_scale
+    return np.array([np.clip(xy[0], *workspace_x), np.clip(xy[1], *workspace_y), home_z])
+
+
+def yaw_quat(yaw: float) -> np.ndarray:
+    return np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])
+
+
+def quat_yaw(q: np.ndarray) -> float:
+    w, x, y, z = q
+    return float(math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
+
+
+def params_to_numpy(params: objects.ObjectParams) -> objects.ObjectParams:
+    """An `ObjectParams` with float64 NumPy leaves (accepts JAX or NumPy arrays), shapes checked."""
+    shapes = {"size": (3,), "mass": (), "inertia": (3,), "friction": (3,), "start": (3,), "goal": (3,)}
+    out = {}
+    for name, shape in shapes.items():
+        v = np.asarray(getattr(params, name), dtype=np.float64)
+        if v.shape != shape:
+            raise ValueError(f"params.{name} must have shape {shape}, got {v.shape}")
+        if not np.all(np.isfinite(v)):
+            raise ValueError(f"params.{name} must be finite, got {v}")
+        out[name] = v
+    if np.any(out["size"][:2] <= 0) or out["mass"] <= 0 or np.any(out["inertia"] <= 0):
+        raise ValueError("params.size, params.mass and params.inertia must be positive")
+    return objects.ObjectParams(**out)
+
+
+def half_height(params: objects.ObjectParams, geom_type: str) -> float:
+    return float(params.size[2] if geom_type == "box" else params.size[1])
+
+
+def apply_params(m: mujoco.MjModel, d: mujoco.MjData, params: objects.ObjectParams, ids: scene.SceneIds,
+                 geom_type: str) -> None:
+    """Write the object's size, friction, mass and inertia into `m` (as `objects.apply` does for MJX) and
+    let `mj_setConst` recompute what MuJoCo derives from them (inverse weights, subtree masses)."""
+    g, b = ids.object_geom, ids.object_body
+    size = params.size
+    if geom_type == "box":
+        rbound, aabb_half = np.linalg.norm(size), size
+    else:
+        rbound = math.hypot(size[0], size[1])
+        aabb_half = np.array([size[0], size[0], size[1]])
+    m.geom_size[g] = size
+    m.geom_rbound[g] = rbound
+    m.geom_aabb[g, 3:] = aabb_half
+    m.geom_friction[g] = params.friction
+    m.body_mass[b] = params.mass
+    m.body_inertia[b] = params.inertia
+    mujoco.mj_setConst(m, d)
+
+
+@functools.lru_cache(maxsize=None)
+def _sampler(cfg: objects.ObjectConfig, geom_type: str):
+    import jax  # only needed to draw objects; imported lazily so analytic-mask users never start it
+
+    return jax.jit(lambda key, home: objects.sample(key, cfg, geom_type, home))
+
+
+def sample_params(seed: int, cfg: objects.ObjectConfig, geom_type: str) -> objects.ObjectParams:
+    """One object drawn with `mjx_push.objects.sample` from `jax.random.PRNGKey(seed)` (NumPy leaves)."""
+    import jax
+
+    home = np.asarray(scene.home_flange_pos()[:2], np.float32)
+    p = _sampler(cfg, geom_type)(jax.random.PRNGKey(seed), home)
+    return params_to_numpy(jax.tree.map(np.asarray, p))
+
+
+def _close_renderers(renderers: dict) -> None:
+    for r in renderers.values():
+        r.close()
+    renderers.clear()
+
+
+@dataclass
+class _ShapeSim:
+    """One compiled scene per geom type (CPU MuJoCo may switch shape between episodes)."""
+
+    model: mujoco.MjModel
+    data: mujoco.MjData
+    scratch: mujoco.MjData  # for renders at other poses (goal) without touching the simulation
+    ids: scene.SceneIds
+
+
+class CpuPushEnv:
+    """The pushing task on CPU MuJoCo. `geom_type` None draws the shape per episode from the config's
+    shape filter (equally likely); "box" or "cylinder" fixes it."""
+
+    def __init__(self, config: EnvConfig = EnvConfig(), geom_type: str | None = None, mask_source: str = "auto",
+                 seed: int | None = None):
+        if not isinstance(config, EnvConfig):
+            raise ValueError(f"config must be an mjx_push.env.EnvConfig, got {type(config).__name__}")
+        shapes = config.objects.shapes()
+        if geom_type is not None and geom_type not in shapes:
+            raise ValueError(f"geom_type must be None or one of {shapes} (shape filter {config.objects.shape!r}),"
+                             f" got {geom_type!r}")
+        if mask_source not in MASK_SOURCES:
+            raise ValueError(f"mask_source must be one of {MASK_SOURCES}, got {mask_source!r}")
+        self.config = config
+        self.fixed_geom_type = geom_type
+        self.np_random = np.random.default_rng(seed)
+        self.home_flange = scene.home_flange_pos().copy()
+        self._sims: dict[str, _ShapeSim] = {}
+        self._renderers: dict[tuple[str, int, int], mujoco.Renderer] = {}
+        # Close GL contexts while the interpreter is still whole (a Renderer's own __del__ at shutdown
+        # raises once its modules are torn down).
+        weakref.finalize(self, _close_renderers, self._renderers)
+        self.mask_source_used = self._resolve_mask_source(mask_source, geom_type or shapes[0])
+        self.geom_type: str | None = None  # set by reset
+        self.params: objects.ObjectParams | None = None
+
+    # --- public API ----------------------------------------------------------------------------------
+    def reset(self, seed: int | None = None, params: objects.ObjectParams | None = None,
+              geom_type: str | None = None) -> dict:
+        """Start an episode. `seed` reseeds the environment's generator (shape draw, object draw,
+        observation noise); `params` (an `ObjectParams`, JAX or NumPy leaves) fixes the object; `geom_type`
+        its shape (defaults to the fixed shape, else drawn)."""
+        if seed is not None:
+            self.np_random = np.random.default_rng(seed)
+        shapes = self.config.objects.shapes()
+        geom_type = geom_type or self.fixed_geom_type
+        if geom_type is None:
+            geom_type = shapes[int(self.np_random.integers(len(shapes)))] if params is None else None
+        if geom_type is None:
+            raise ValueError("geom_type is required with params when the environment's shape is not fixed")
+        if geom_type not in scene.SHAPES:
+            raise ValueError(f"geom_type must be one of {scene.SHAPES}, got {geom_type!r}")
+        if params is None:
+            params = sample_params(int(self.np_random.integers(2**31 - 1)), self.config.objects, geom_type)
+        else:
+            params = params_to_numpy(params)
+        sim = self._sim(geom_type)
+        self.geom_type, self.params, self._s = geom_type, params, sim
+        m, d, ids = sim.model, sim.data, sim.ids
+        apply_params(m, d, params, ids, geom_type)
+        mujoco.mj_resetData(m, d)
+        a = ids.object_qpos
+        d.qpos[:7] = scene.HOME_QPOS
+        d.qpos[a : a + 7] = self._object_qpos(params.start)
+        mujoco.mj_forward(m, d)
+        self._qpos0 = d.qpos.copy()
+        self.goal_mask = self._mask(self._object_qpos(params.goal), d.qpos)
+        self.target = self.home_flange.copy()
+        self.step_count = 0
+        self.corrections = corr.Corrections()
+        self.episode_invalid = False
+        self.invalid_count = 0
+        self.bad_actions = 0
+        self._last = {"substeps": 0, "max_tilt": 0.0, "max_height_error": 0.0, "invalid": False}
+        return self._observation()
+
+    def step(self, action) -> tuple[dict, float, bool, bool, dict]:
+        """One environment step: `action` (3,) = (a_x, a_y, a_s) in [-1, 1]. Non-finite components become 0
+        and are counted in info["bad_actions"]; values outside [-1, 1] are clipped; a wrong shape raises
+        ValueError. Returns (obs, reward, terminated=False, truncated, info)."""
+        if self.params is None:
+            raise RuntimeError("call reset() before step()")
+        action = np.asarray(action, dtype=np.float64)
+        if action.shape != (3,):
+            raise ValueError(f"action must have shape (3,) = (a_x, a_y, a_s), got {action.shape}")
+        action, bad = sanitize_action(action)
+        self.bad_actions += int(bad)
+        cfg = self.config
+        d, ids = self._s.data, self._s.ids
+        self.target = flange_target(d.site_xpos[ids.flange_site][:2], action[:2], cfg.action_scale,
+                                    cfg.workspace_x, cfg.workspace_y, self.home_flange[2])
+        n = decode_substeps(action[2], cfg.substeps)
+        unstable0 = self._unstable_count()
+        max_tilt, max_herr = self.run_substeps(n)
+        # C MuJoCo resets MjData to the model's default pose by itself when qpos, qvel or qacc go bad
+        # (with a warning): that is an invalid state too, though everything is finite again.
+        invalid = self._unstable_count() > unstable0 or not self._valid()
+        if invalid:
+            self._restore_initial()
+        self.episode_invalid |= invalid
+        self.invalid_count += int(invalid)
+        self.step_count += 1
+        self._last = {"substeps": n, "max_tilt": max_tilt, "max_height_error": max_herr, "invalid": invalid}
+        obs = self._observation()
+        info = self.info()
+        reward = float(info["success"]) - 1.0
+        truncated = self.step_count >= cfg.episode_length
+        return obs, reward, False, truncated, info
+
+    def run_substeps(self, n: int) -> tuple[float, float]:
+        """Run `n` 1 ms substeps towards `self.target` with the controller, counting corrections. Returns
+        the largest rod tilt (rad) and flange height error (m) seen. Used by `step` and by the simulated
+        robot of `export.deploy`."""
+        cfg = self.config
+        m, d, ids = self._s.model, self._s.data, self._s.ids
+        ccfg = cfg.controller
+        held = ctl.joint_velocity(m, d, self.target, ids, ccfg) if ccfg.hold_per_step else None
+        goal_xy = self.params.goal[:2]
+        home_z = self.home_flange[2]
+        a = ids.object_qpos
+        c = self.corrections
+        max_tilt = max_herr = 0.0
+        for _ in range(int(n)):
+            d.ctrl[:7] = held if held is not None else ctl.joint_velocity(m, d, self.target, ids, ccfg)
+            mujoco.mj_step(m, d)
+            c = corr.update(c, math.hypot(d.qpos[a] - goal_xy[0], d.qpos[a + 1] - goal_xy[1]), cfg.success_tau)
+            p, z = ctl.flange_pose(d, ids)
+            max_tilt = max(max_tilt, ctl.rod_tilt(z))
+            max_herr = max(max_herr, abs(p[2] - home_z))
+        self.corrections = c
+        return max_tilt, max_herr
+
+    def info(self) -> dict:
+        """Ground truth and counters (noise-free), as the MJX environment's info."""
+        d, a = self._s.data, self._s.ids.object_qpos
+        object_xy = d.qpos[a : a + 2].copy()
+        goal_xy = self.params.goal[:2].copy()
+        dist = float(np.linalg.norm(object_xy - goal_xy))
+        return {
+            "object_xy": object_xy,
+            "object_yaw": quat_yaw(d.qpos[a + 3 : a + 7]),
+            "object_z": float(d.qpos[a + 2]),
+            "goal_xy": goal_xy,
+            "goal_yaw": float(self.params.goal[2]),
+            "ee_xy_true": d.site_xpos[self._s.ids.flange_site][:2].copy(),
+            "target": self.target.copy(),
+            "distance": dist,
+            "success": dist < self.config.success_tau,
+            "corrections": self.corrections,
+            "substeps": self._last["substeps"],
+            "max_tilt": self._last["max_tilt"],
+            "max_height_error": self._last["max_height_error"],
+            "invalid": self._last["invalid"],
+            "episode_invalid": self.episode_invalid,
+            "invalid_count": self.invalid_count,
+            "bad_actions": self.bad_actions,
+            "step": self.step_count,
+            "geom_type": self.geom_type,
+        }
+
+    def flange_pos(self) -> np.ndarray:
+        """True flange position (3,) (no observation noise)."""
+        return self._s.data.site_xpos[self._s.ids.flange_site].copy()
+
+    def object_mask(self) -> np.ndarray:
+        """The current object mask (64, 64) bool from `mask_source_used`."""
+        d, a = self._s.data, self._s.ids.object_qpos
+        return self._mask(d.qpos[a : a + 7], d.qpos)
+
+    def render_rgb(self, camera: str = "top", size: tuple[int, int] = MAX_RENDER_SIZE) -> np.ndarray:
+        """RGB frame (H, W, 3) uint8 of the current state from `camera` ("top" or "under_table"), for videos
+        and for the simulated camera of `export.deploy`. `size` = (height, width) <= (480, 640)."""
+        if camera not in CAMERAS:
+            raise ValueError(f"camera must be one of {CAMERAS}, got {camera!r}")
+        h, w = (int(v) for v in size)
+        if not (1 <= h <= MAX_RENDER_SIZE[0] and 1 <= w <= MAX_RENDER_SIZE[1]):
+            raise ValueError(f"size must be (height, width) within {MAX_RENDER_SIZE}, got {size!r}")
+        if self.params is None:
+            raise RuntimeError("call reset() before render_rgb()")
+        return self._render(self._s.data.qpos, camera, h, w)
+
+    def close(self) -> None:
+        _close_renderers(self._renderers)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    # --- internals -----------------------------------------------------------------------------------
+    def _sim(self, geom_type: str) -> _ShapeSim:
+        if geom_type not in self._sims:
+            m = scene.build_model(geom_type, self.config.solver)
+            self._sims[geom_type] = _ShapeSim(m, mujoco.MjData(m), mujoco.MjData(m), scene.scene_ids(m))
+        return self._sims[geom_type]
+
+    def _resolve_mask_source(self, source: str, probe_shape: str) -> str:
+        if source == "analytic":
+            return "analytic"
+        try:
+            self._renderer(probe_shape, scene.IMAGE_SIZE, scene.IMAGE_SIZE)
+        except Exception as e:  # no OpenGL context (no EGL/OSMesa/display)
+            if source == "render":
+                raise RuntimeError(f"mask_source='render' needs MuJoCo's offscreen renderer, which failed "
+                                   f"({type(e).__name__}: {e}); set MUJOCO_GL=egl before importing mujoco, "
+                                   "or use mask_source='analytic'") from e
+            warnings.warn(f"MuJoCo renderer unavailable ({type(e).__name__}: {e}); using analytic masks",
+                          RuntimeWarning, stacklevel=3)
+            return "analytic"
+        return "render"
+
+    def _renderer(self, geom_type: str, h: int, w: int) -> mujoco.Renderer:
+        key = (geom_type, h, w)
+        if key not in self._renderers:
+            self._renderers[key] = _new_renderer(self._sim(geom_type).model, h, w)
+        return self._renderers[key]
+
+    def _object_qpos(self, pose: np.ndarray) -> np.ndarray:
+        z = scene.TABLE_TOP + half_height(self.params, self.geom_type)
+        return np.concatenate([pose[:2], [z], yaw_quat(float(pose[2]))])
+
+    def _mask(self, obj_qpos: np.ndarray, qpos: np.ndarray) -> np.ndarray:
+        """Mask of the object at `obj_qpos` (7,), the rest of the scene at `qpos`."""
+        if self.mask_source_used == "analytic":
+            # Like the MJX environment: upright object at the pose's xy, yaw and centre height.
+            return masks_np.object_mask(self.geom_type, self.params.size, obj_qpos[:2],
+                                        quat_yaw(obj_qpos[3:7]), obj_qpos[2])
+        a = self._s.ids.object_qpos
+        q = np.array(qpos, copy=True)
+        q[a : a + 7] = obj_qpos
+        n = scene.IMAGE_SIZE
+        return render_filter(self._render(q, "under_table", n, n))
+
+    def _render(self, qpos: np.ndarray, camera: str, h: int, w: int) -> np.ndarray:
+        # Render from a scratch copy so the simulation's MjData (whose kinematics the controller reads)
+        # is never recomputed by a render.
+        m, v = self._s.model, self._s.scratch
+        v.qpos[:] = qpos
+        mujoco.mj_kinematics(m, v)
+        mujoco.mj_camlight(m, v)
+        r = self._renderer(self.geom_type, h, w)
+        r.update_scene(v, camera=camera)
+        return r.render().copy()
+
+    def _observation(self) -> dict:
+        d, ids = self._s.data, self._s.ids
+        ee = d.site_xpos[ids.flange_site][:2].copy()
+        noise = self.config.obs_noise * self.np_random.standard_normal(2)
+        return {"ee_xy": ee + noise, "object_mask": self.object_mask(), "goal_mask": self.goal_mask.copy()}
+
+    def _valid(self) -> bool:
+        """As `PushEnv._valid`: finite state, object centre over the table footprint, within its height band."""
+        d, a = self._s.data, self._s.ids.object_qpos
+        if not (np.all(np.isfinite(d.qpos)) and np.all(np.isfinite(d.qvel))):
+            return False
+        x, y, z = d.qpos[a : a + 3]
+        rest = scene.TABLE_TOP + half_height(self.params, self.geom_type)
+        on_table = scene.TABLE_X[0] <= x <= scene.TABLE_X[1] and scene.TABLE_Y[0] <= y <= scene.TABLE_Y[1]
+        in_band = rest - self.config.oob_sink < z < rest + self.config.oob_rise
+        return bool(on_table and in_band)
+
+    def _unstable_count(self) -> int:
+        w = self._s.data.warning
+        return sum(int(w[k].number) for k in _UNSTABLE_WARNINGS)
+
+    def _restore_initial(self) -> None:
+        """The episode's initial state (as the MJX environment swaps in its initial data)."""
+        m, d = self._s.model, self._s.data
+        mujoco.mj_resetData(m, d)
+        d.qpos[:] = self._qpos0
+        mujoco.mj_forward(m, d)
