@@ -24,3 +24,25 @@ def box_sim() -> Sim:
 @pytest.fixture(scope="session")
 def cyl_sim() -> Sim:
     return Sim("cylinder")
+
+
+@pytest.fixture(scope="session")
+def encoder_file(tmp_path_factory) -> str:
+    """An untrained encoder (tests of plumbing must not depend on the shipped weights)."""
+    from mjx_push import encoder as enc
+
+    path = tmp_path_factory.mktemp("enc") / "encoder.msgpack"
+    enc.save(path, enc.init_vae(jax.random.PRNGKey(0))["encoder"], {"seed": 0, "command": "test"})
+    return str(path)
+
+
+@pytest.fixture(scope="session")
+def tiny_egru_run(tmp_path_factory, encoder_file):
+    """An eGRU trained end to end on the MJX scene at a tiny size: (config, run dir, summary, state)."""
+    from train import run as run_mod
+    from tests.helpers import tiny_run_config
+
+    cfg = tiny_run_config("egru", encoder_file)
+    d = tmp_path_factory.mktemp("egru")
+    summary, state = run_mod.run(cfg, d)
+    return cfg, d, summary, state

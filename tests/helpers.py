@@ -54,3 +54,22 @@ class Sim:
     def start(self, params_list, seed: int = 0):
         assert len(params_list) == B
         return self.reset_with(jax.random.split(jax.random.PRNGKey(seed), B), stack(params_list))
+
+
+def tiny_run_config(agent: str, encoder_path: str):
+    """A run of 2 environments, 3-step episodes of 10-30 substeps: compilation, not simulation, costs."""
+    import dataclasses
+
+    from train import presets
+    from train.config import LoopConfig, ReplayConfig, SACConfig
+
+    cfg = presets.make(agent, "smoke")
+    env = dataclasses.replace(cfg.env, episode_length=3, substeps=(10, 30))
+    t = dataclasses.replace(
+        cfg.train,
+        sac=SACConfig(batch_size=4),
+        replay=ReplayConfig(capacity_transitions=60),
+        loop=LoopConfig(num_envs=2, episode_len=3, total_env_steps=12, warmup_env_steps=6, utd=0.5,
+                        eval_every_env_steps=6, eval_episodes=2),
+    )
+    return dataclasses.replace(cfg, env=env, train=t, encoder=encoder_path)

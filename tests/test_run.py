@@ -21,16 +21,6 @@ from train.toy import make_toy
 TAU = 0.025
 
 
-@pytest.fixture(scope="session")
-def encoder_file(tmp_path_factory):
-    """An untrained encoder: the toy task has its own latents; the saved policies still carry one."""
-    from mjx_push import encoder as enc
-
-    path = tmp_path_factory.mktemp("enc") / "encoder.msgpack"
-    enc.save(path, enc.init_vae(jax.random.PRNGKey(0))["encoder"], {"seed": 0, "command": "test"})
-    return str(path)
-
-
 def toy_run_config(encoder, kind="ugru", seed=0) -> RunConfig:
     train_cfg = TrainConfig(
         agent=AgentConfig(kind, hidden=(32, 32), gru_hidden=8),

@@ -3,49 +3,19 @@
 
 import train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
 
-import dataclasses
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from mjx_push import encoder as enc
-from train import presets, run as run_mod
-from train.config import LoopConfig, ReplayConfig, SACConfig
+from tests.helpers import tiny_run_config
+from train import run as run_mod
 from train.push_task import make_push_adapter
 
 
-def tiny(agent: str, encoder_path: str) -> presets.RunConfig:
-    cfg = presets.make(agent, "smoke")
-    env = dataclasses.replace(cfg.env, episode_length=3, substeps=(10, 30))
-    t = dataclasses.replace(
-        cfg.train,
-        sac=SACConfig(batch_size=4),
-        replay=ReplayConfig(capacity_transitions=60),
-        loop=LoopConfig(num_envs=2, episode_len=3, total_env_steps=12, warmup_env_steps=6, utd=0.5,
-                        eval_every_env_steps=6, eval_episodes=2),
-    )
-    return dataclasses.replace(cfg, env=env, train=t, encoder=encoder_path)
-
-
-@pytest.fixture(scope="module")
-def encoder_file(tmp_path_factory):
-    path = tmp_path_factory.mktemp("enc") / "encoder.msgpack"
-    enc.save(path, enc.init_vae(jax.random.PRNGKey(0))["encoder"], {"seed": 0})
-    return str(path)
-
-
-@pytest.fixture(scope="module")
-def egru_run(tmp_path_factory, encoder_file):
-    cfg = tiny("egru", encoder_file)
-    d = tmp_path_factory.mktemp("egru")
-    summary, state = run_mod.run(cfg, d)
-    return cfg, d, summary, state
-
-
-def test_egru_trains_on_the_pushing_scene(egru_run):
-    cfg, d, summary, state = egru_run
+def test_egru_trains_on_the_pushing_scene(tiny_egru_run):
+    cfg, d, summary, state = tiny_egru_run
     assert cfg.env.objects.mode == "improved"  # eGRU = GRU + improved force sampling
     # Warm-up ends with the first batch (6 steps), so both batches run 2 * 3 * 0.5 = 3 updates.
     assert summary["env_steps"] == 12 and summary["updates"] == 6
@@ -62,7 +32,7 @@ def test_egru_trains_on_the_pushing_scene(egru_run):
 
 
 def test_adapter_latents_are_the_encoder_of_the_masks(encoder_file):
-    cfg = tiny("vpm", encoder_file)
+    cfg = tiny_run_config("vpm", encoder_file)
     params = enc.load(encoder_file)
     adapter = make_push_adapter(cfg.env, params)
     from mjx_push.batch import PushBatch

@@ -181,8 +181,133 @@ class Train:
         return [n for n in names if getattr(self, n) is not None]
 
 
+def resolve_policy(path: Path):
+    """A run directory (its best policy), a saved policy (.msgpack/.json or their stem) or an exported
+    .npz -> train.run.Policy."""
+    from train import run as run_mod
+
+    path = Path(path)
+    if path.suffix == ".npz":
+        from export.policy_file import load_as_policy  # the CLI composes all three packages
+
+        return load_as_policy(path)
+    if path.is_dir():
+        if (path / "best_policy.msgpack").is_file():
+            return run_mod.load_policy(path / "best_policy")
+        raise ValueError(f"{path} is not a run directory (no best_policy.msgpack; did the run finish?)")
+    return run_mod.load_policy(path)
+
+
+@dataclasses.dataclass
+class Eval:
+    """Evaluate a policy with the paper's protocol (SPEC section 7) on the MJX scene.
+
+    POLICY: a run directory, a saved policy (best_policy.msgpack) or an exported .npz."""
+
+    policy: tyro.conf.Positional[Path]
+    setting: Literal["standard", "difficult", "custom"] = "difficult"
+    shape: Literal["all", "cylinder", "square", "rectangular", "cuboid"] = "all"
+    episodes: int = 100
+    seed: int = 1_000_003
+    """episode seeds: the same for every agent"""
+    batch: int = 20
+    mass: tuple[float, float] | None = None
+    """custom setting: mass range (kg)"""
+    friction: tuple[float, float] | None = None
+    """custom setting: sliding friction range"""
+    min_height: float | None = None
+    """custom setting: minimum full height (m)"""
+    out: Path | None = None
+    """JSON with the table and per-episode values (default: eval.json beside the policy)"""
+    video: Path | None = None
+    """render the first --video-episodes episodes (top and under-table views) to .gif or .mp4"""
+    video_episodes: int = 2
+
+    def run(self) -> None:
+        import json
+
+        import numpy as np
+        from rich.console import Console
+        from rich.table import Table
+
+        from train.evaluate import EvalSpec, evaluate
+
+        if self.video is not None and self.video.suffix.lower() not in (".gif", ".mp4"):
+            raise ValueError(f"--video must end in .gif or .mp4, got {self.video}")
+        spec = EvalSpec(setting=self.setting, shape=self.shape, episodes=self.episodes, seed=self.seed,
+                        batch=min(self.batch, self.episodes), mass=self.mass, friction=self.friction,
+                        min_height=self.min_height, record=min(self.video_episodes, self.episodes) if self.video else 0)
+        policy = resolve_policy(self.policy)
+        console = Console()
+        console.print(f"[bold]mjx-push eval[/] {policy.config.agent}: {spec.episodes} episodes, setting "
+                      f"{spec.setting}, shape {spec.shape} (the first batch includes JIT compilation)")
+        res = evaluate(policy, spec)
+        s = res["summary"]
+        table = Table(title=f"{policy.config.agent} / {spec.setting} / {spec.shape} ({spec.episodes} episodes)")
+        for col in ("metric", "mean", "SEM"):
+            table.add_column(col, justify="right")
+        for m, label in (("success", "success rate"), ("reward", "mean episode reward"),
+                         ("overshoot", "overshoot corrections"), ("distance", "distance corrections")):
+            table.add_row(label, f"{s[m]['mean']:.3f}", f"{s[m]['sem']:.3f}")
+        console.print(table)
+        if res["invalid_episodes"]:
+            console.print(f"[yellow]{res['invalid_episodes']} episodes hit an invalid simulation state "
+                          "(counted as failures with reward -50)")
+        out = self.out or (self.policy if self.policy.is_dir() else self.policy.parent) / "eval.json"
+        record = {"policy": str(self.policy), "agent": policy.config.agent, "spec": dataclasses.asdict(spec),
+                  "summary": s, "invalid_episodes": res["invalid_episodes"],
+                  "per_episode": {k: np.asarray(v).tolist() for k, v in res["per_episode"].items()}}
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(record, indent=2) + "\n")
+        console.print(f"written {out}")
+        if self.video is not None:
+            from mjx_push import video
+
+            r = video.EpisodeRenderer()
+            frames = []
+            for ep in res["recorded"]:
+                p = ep["params"]
+                frames += r.frames(ep["geom_type"], p.size, p.goal, ep["qpos"])
+            r.close()
+            console.print(f"video: {video.write(frames, self.video)} ({len(frames)} frames)")
+
+
+@dataclasses.dataclass
+class Reproduce:
+    """Train VPM, Stacked, uGRU and eGRU, evaluate each on the difficult case per shape (cylinder,
+    square cuboid, rectangular cuboid) and write a Markdown report with figures (SPEC section 7).
+    Rerunning reuses finished runs and resumes interrupted ones."""
+
+    budget: Literal["smoke", "paper", "gpu"] = "smoke"
+    seeds: int = 1
+    out: Path | None = None
+    """default: outputs/reproduce-<budget>"""
+    episodes: int | None = None
+    """evaluation episodes per shape (default: 8 for smoke, 100 otherwise)"""
+    agents: tuple[Literal["vpm", "stacked", "ugru", "egru"], ...] = ("vpm", "stacked", "ugru", "egru")
+
+    def run(self) -> None:
+        from rich.console import Console
+
+        from train.reproduce import reproduce
+
+        console = Console()
+        out = self.out or Path(f"outputs/reproduce-{self.budget}")
+        if self.episodes is not None and self.episodes < 1:
+            raise ValueError(f"--episodes must be >= 1, got {self.episodes}")
+        path = reproduce(self.budget, self.seeds, out, self.episodes, tuple(self.agents), log=console.print)
+        console.print(f"report: {path}")
+        console.print((path.parent / "report.md").read_text())
+
+
 def main(argv: list[str] | None = None) -> int:
-    commands = {"train": Train, "train-encoder": TrainEncoder, "demo": Demo}
+    commands = {"train": Train, "eval": Eval, "reproduce": Reproduce, "train-encoder": TrainEncoder, "demo": Demo}
+    try:  # export's commands (export, deploy); the CLI is the one place that composes all packages
+        from export.cli import COMMANDS as export_commands
+
+        commands.update(export_commands)
+    except ImportError:
+        pass
     try:
         cmd = tyro.extras.subcommand_cli_from_dict(commands, args=argv, prog="mjx-push")
         cmd.run()

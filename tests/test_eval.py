@@ -1,0 +1,195 @@
+"""The evaluation protocol (train/evaluate.py), the report (train/report.py) and `mjx-push eval`."""
+
+import train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
+
+import dataclasses
+import json
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from mjx_push import scene
+from tests.helpers import B, HOME_XY, a_s_for, action_for, make_params
+from train import report
+from train.cli import main as cli_main
+from train.evaluate import EvalSpec, evaluator_for, sem, summarize
+from train.run import Policy
+
+
+# --- arithmetic ---------------------------------------------------------------------------------------
+def test_sem_is_the_sample_std_over_sqrt_n():
+    assert sem([1.0, 2.0, 3.0, 4.0]) == pytest.approx(math.sqrt(5 / 3) / 2)
+    assert sem([0.0, 0.0, 1.0, 1.0]) == pytest.approx(math.sqrt(1 / 3) / 2)
+    assert sem([7.0]) == 0.0
+    s = summarize({"success": [1, 0, 1, 1], "reward": [-3, -50, 0, -1], "overshoot": [0, 0, 0, 0],
+                   "distance": [2, 1, 0, 1]})
+    assert s["success"] == {"mean": 0.75, "sem": pytest.approx(0.25), "n": 4}
+    assert s["reward"]["mean"] == -13.5 and s["overshoot"]["sem"] == 0.0
+
+
+def test_seeds_combine_with_the_sem_across_seed_means():
+    per_seed = [summarize({"success": [1, 1], "reward": [0, 0], "overshoot": [1, 1], "distance": [0, 2]}),
+                summarize({"success": [0, 1], "reward": [-50, 0], "overshoot": [0, 0], "distance": [1, 1]})]
+    c = report.combine(per_seed)
+    assert c["success"]["mean"] == 0.75 and c["success"]["sem"] == pytest.approx(sem([1.0, 0.5]))
+    assert c["reward"]["n_episodes"] == 4 and c["reward"]["n_seeds"] == 2
+    one = report.combine(per_seed[:1])
+    assert one["distance"]["sem"] == pytest.approx(sem([0, 2]))  # one seed: the SEM over episodes
+
+
+# --- bad input ----------------------------------------------------------------------------------------
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(setting="hard"), "setting must be one of"),
+    (dict(shape="sphere"), "shape must be one of"),
+    (dict(episodes=0), "episodes must be a positive integer"),
+    (dict(mass=(0.1, 0.2)), "need setting 'custom'"),
+])
+def test_bad_evaluation_settings_are_named(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        EvalSpec(**kwargs)
+
+
+def test_eval_cli_reports_bad_input(tmp_path, capsys):
+    assert cli_main(["eval", str(tmp_path / "missing-run")]) == 2
+    assert "policy file not found" in capsys.readouterr().err
+    assert cli_main(["eval", str(tmp_path), "--episodes", "0"]) == 2
+    assert "episodes must be a positive integer" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        cli_main(["eval", str(tmp_path), "--shape", "sphere"])
+
+
+def test_custom_and_difficult_settings_draw_their_ranges():
+    spec = EvalSpec(setting="custom", mass=(0.3, 0.4), friction=(0.5, 0.6), min_height=0.05)
+    cfg = spec.object_config()
+    assert (cfg.mass, cfg.friction, cfg.min_height, cfg.mode) == ((0.3, 0.4), (0.5, 0.6), 0.05, "uniform")
+    hard = EvalSpec(setting="difficult").object_config()
+    assert (hard.mass, hard.friction, hard.min_height) == ((0.001, 0.01), (0.2, 0.3), 0.052)
+
+
+# --- scripted episodes with known answers -------------------------------------------------------------
+def test_scripted_pushes_give_the_known_correction_counts(box_sim):
+    """Four boxes: a rod that never moves (no correction, reward -steps), one that pushes the object
+    straight through its goal (one overshoot, no distance correction), one
+    that pushes it exactly onto the goal region and stops (success), and one with the goal at the start
+    (success from the first step, no correction)."""
+    start, goal = (0.1, 0.0, 0.0), (0.15, 0.0, 0.0)
+    # Env 1's goal is 2 cm ahead and the push aims 13 cm further, so the object leaves the disc fast: an
+    # exit counts only when its substep jumps more than eps = 2e-5 m past tau (SPEC section 7); a slow
+    # exit (under ~0.04 m/s) may go uncounted.
+    params = [make_params("box", sides=(0.06, 0.06), start=start, goal=goal),
+              make_params("box", sides=(0.06, 0.06), start=start, goal=(0.12, 0.0, 0.0)),
+              make_params("box", sides=(0.06, 0.06), start=start, goal=(0.115, 0.0, 0.0)),
+              make_params("box", sides=(0.06, 0.06), start=start, goal=start)]
+    s = box_sim.start(params)
+    rod_r = scene.ROD_RADIUS  # contact when the rod's axis is 3 cm + r behind the box centre
+    # Flange x targets (relative to home) per env: stay; push the object's centre to 0.25 (past 0.12);
+    # push it to about 0.115 (inside the 1 cm goal radius around 0.115); stay.
+    back = [0.0, 0.25 - 0.03 - rod_r, 0.115 - 0.03 - rod_r, 0.0]
+    steps = 8
+    rewards = np.zeros(B)
+    for _ in range(steps):
+        ee = s.pipeline_state.site_xpos[:, box_sim.env.ids.flange_site, :2]
+        target = jnp.stack([HOME_XY[0] + jnp.asarray(back), jnp.full(B, HOME_XY[1])], axis=1)
+        s = box_sim.step(s, action_for(ee, target, a_s_for(600)))
+        rewards += np.asarray(s.reward)
+    c = s.info["corrections"]
+    dist = np.linalg.norm(np.asarray(s.info["object_xy"] - s.info["goal_xy"]), axis=1)
+    assert not np.asarray(s.info["episode_invalid"]).any()
+    # Never moves.
+    assert dist[0] == pytest.approx(0.05, abs=1e-3) and rewards[0] == -steps
+    assert int(c.overshoot[0]) == 0 and int(c.distance[0]) == 0
+    # Pushed through the goal: enters the 1 cm disc once and leaves it once; the distance only falls
+    # and then only grows, so no distance correction.
+    assert dist[1] > 0.05
+    assert int(c.overshoot[1]) == 1 and int(c.distance[1]) == 0
+    # Pushed onto the goal: success, no overshoot.
+    assert dist[2] < 0.01 and int(c.overshoot[2]) == 0 and rewards[2] > -steps
+    # Already at the goal: every step rewarded 0.
+    assert rewards[3] == 0 and int(c.overshoot[3]) == 0 and int(c.distance[3]) == 0
+
+
+# --- the evaluator on a trained policy ----------------------------------------------------------------
+@pytest.fixture(scope="module")
+def evaluator(tiny_egru_run):
+    cfg = tiny_egru_run[0]
+    return evaluator_for(cfg.env, cfg.train.agent, 2)  # the CLI test below reuses its compiled episodes
+
+
+def test_the_same_seeds_give_the_same_episodes_to_every_policy(tiny_egru_run, evaluator):
+    cfg, d, _, state = tiny_egru_run
+    from train import run as run_mod
+
+    trained = run_mod.load_policy(d / "best_policy")
+    from train.networks import make_networks
+
+    other_actor, _ = make_networks(cfg.train.agent).init(jax.random.PRNGKey(99), cfg.env.episode_length)
+    other = Policy(cfg, other_actor, trained.encoder_params, {})
+    spec = EvalSpec(setting="standard", shape="cylinder", episodes=3, batch=2, record=3)
+    a, b = evaluator.evaluate(trained, spec), evaluator.evaluate(other, spec)
+    for ra, rb in zip(a["recorded"], b["recorded"]):
+        np.testing.assert_array_equal(ra["qpos"][0], rb["qpos"][0])  # same object, start, goal
+        jax.tree.map(np.testing.assert_array_equal, ra["params"], rb["params"])
+    assert not np.allclose(a["recorded"][0]["action"], b["recorded"][0]["action"])  # different policies
+    # Episodes do not depend on the batch they were simulated in.
+    p2, _ = evaluator.episode_params(spec, "cylinder", np.array([0, 1, 2]))
+    p1, _ = evaluator.episode_params(spec, "cylinder", np.array([2]))
+    np.testing.assert_array_equal(np.asarray(p2.goal[2]), np.asarray(p1.goal[0]))
+    assert a["summary"]["success"]["n"] == 3
+
+
+def test_report_end_to_end_from_a_trained_checkpoint(tiny_egru_run, evaluator, tmp_path):
+    cfg, d, _, _ = tiny_egru_run
+    from train import run as run_mod
+
+    policy = run_mod.load_policy(d / "best_policy")
+    results = {}
+    for agent in ("egru", "vpm"):  # the same policy under two names: the report's layout, not a comparison
+        results[agent] = {}
+        for shape in ("cylinder",):
+            res = evaluator.evaluate(policy, EvalSpec(setting="difficult", shape=shape, episodes=2, batch=2))
+            results[agent][shape] = [res["summary"]]
+    path = report.write_report(tmp_path, results, {"budget": "smoke", "seeds": 1, "episodes": 2,
+                                                   "setting": "difficult", "wall_s": 1.0})
+    text = path.read_text()
+    assert "| cylinder | eGRU |" in text and "| cylinder | VPM |" in text
+    assert (tmp_path / "metrics.png").stat().st_size > 10_000
+    assert (tmp_path / "friction_force.png").stat().st_size > 10_000
+    combined = json.loads((tmp_path / "results.json").read_text())["combined"]
+    assert combined["egru"]["cylinder"]["success"]["n_episodes"] == 2
+
+
+def test_friction_force_samplers_differ_as_in_the_paper():
+    f = report.friction_force_samples(n=20_000)
+    # Improved sampling puts more mass on the smallest and far more on the largest forces than uniform
+    # m * mu does (half its draws sit near each end of [F_min, F_max]).
+    g = 9.81
+    lo, hi = 0.001 * 0.2 * g, 1.0 * 1.0 * g
+    for v in f.values():
+        assert v.min() >= lo * 0.999 and v.max() <= hi * 1.001
+    small = 0.01 * hi
+    assert np.mean(f["improved"] < small) > 1.3 * np.mean(f["uniform"] < small)
+    assert np.mean(f["improved"] > 0.8 * hi) > 5 * np.mean(f["uniform"] > 0.8 * hi)
+
+
+@pytest.mark.renderer
+def test_eval_cli_writes_json_and_a_video(tiny_egru_run, tmp_path):
+    from export.cpu_env import renderer_available
+
+    if not renderer_available():
+        pytest.skip("MuJoCo's offscreen renderer (EGL) is not available on this machine")
+    _, d, _, _ = tiny_egru_run
+    out = tmp_path / "eval.json"
+    gif = tmp_path / "episodes.gif"
+    assert cli_main(["eval", str(d), "--episodes", "2", "--batch", "2", "--shape", "cylinder",
+                     "--setting", "standard", "--out", str(out), "--video", str(gif), "--video-episodes", "1"]) == 0
+    rec = json.loads(out.read_text())
+    assert set(rec["summary"]) == {"success", "reward", "overshoot", "distance"}
+    assert len(rec["per_episode"]["reward"]) == 2
+    import imageio.v2 as imageio
+
+    frames = imageio.mimread(gif)
+    assert len(frames) == 4  # reset + 3 steps of the tiny episode
+    assert frames[0].shape[1] == 2 * frames[0].shape[0] * 320 // 240  # two views side by side

@@ -1,0 +1,410 @@
+"""Exported policies (export.policy_file, export.numpy_policy, export.torch_policy), the export / deploy
+commands (export.cli) and the evaluation metrics (export.metrics). Networks are random-initialised, never
+trained: the point is that every implementation computes the same function."""
+
+import importlib.metadata
+import importlib.util
+import json
+import math
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from export import masks_np
+from export import policy_file as pfile
+from export.cli import Deploy, Export
+from export.metrics import summarize
+from export.numpy_policy import NumpyPolicy, decode_substeps
+from mjx_push import encoder as enc
+from mjx_push import scene
+from mjx_push.env import EnvConfig
+from mjx_push.env import decode_substeps as jax_decode_substeps
+from train.config import AGENT_KINDS, AgentConfig
+from train.networks import make_networks
+from train.presets import make
+from train.run import Policy, save_policy
+from tests.helpers import a_s_for
+
+REPO = Path(__file__).resolve().parents[1]
+HAVE_TORCH = importlib.util.find_spec("torch") is not None
+NO_TORCH = "torch is not installed (optional extra: pip install -e '.[torch]')"
+# Random-init heads give actions of a few 1e-2; a larger mean head spreads them over [-1, 1] so the
+# flange really moves, the object gets pushed and the masks change during the episode.
+HEAD_GAIN = 25.0
+ATOL = 1e-5
+
+
+def _randomize_biases(tree, rng: np.random.Generator):
+    """flax initialises biases at zero, which would hide a misplaced bias (e.g. the GRU's hn bias)."""
+    return jax.tree_util.tree_map_with_path(
+        lambda path, v: v + 0.1 * rng.standard_normal(v.shape).astype(np.float32)
+        if getattr(path[-1], "key", None) == "bias" else v, tree)
+
+
+def _policy(kind: str, encoder_params, seed: int) -> tuple[Policy, object]:
+    nets = make_networks(AgentConfig(kind))
+    actor, _ = nets.init(jax.random.PRNGKey(seed), 50)
+    actor = _randomize_biases(actor, np.random.default_rng(seed))
+    head = actor["params"]["mean_head"]
+    actor["params"]["mean_head"] = {k: v * HEAD_GAIN for k, v in head.items()}
+    scores = {"best_eval_mean_reward": -42.0, "best_eval_success_rate": float("nan")}
+    return Policy(make(kind, "smoke"), actor, encoder_params, scores), nets
+
+
+@pytest.fixture(scope="module")
+def encoder_params():
+    """A random encoder with the trained encoder's structure. Drawn in NumPy (LeCun-normal kernels, random
+    biases): flax's init of the whole VAE compiles the decoder too and takes ~15 s on 2 cores."""
+    rng = np.random.default_rng(7)
+    template = enc._template()
+
+    def draw(path, leaf):
+        if getattr(path[-1], "key", None) == "bias":
+            return jnp.asarray(0.1 * rng.standard_normal(leaf.shape), jnp.float32)
+        fan_in = int(np.prod(leaf.shape[:-1]))
+        return jnp.asarray(rng.standard_normal(leaf.shape) / np.sqrt(fan_in), jnp.float32)
+
+    return jax.tree_util.tree_map_with_path(draw, template)
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory, encoder_params):
+    """kind -> (Policy, Networks, path of the exported .npz)."""
+    root = tmp_path_factory.mktemp("export")
+    out = {}
+    for i, kind in enumerate(AGENT_KINDS):
+        policy, nets = _policy(kind, encoder_params, seed=i)
+        path = root / f"{kind}.npz"
+        pfile.export_policy(policy, path)
+        out[kind] = (policy, nets, path)
+    return out
+
+
+@pytest.fixture(scope="module")
+def jax_encode():
+    return jax.jit(enc.encode)
+
+
+# --- parity with the JAX policy over a whole episode ---------------------------------------------------
+def _moving_object(geom: str, seed: int, steps: int = 51):
+    """Masks (steps, 64, 64) of an object sliding and turning across the view, and its goal mask."""
+    rng = np.random.default_rng(seed)
+    home = scene.home_flange_pos()[:2]
+    start, goal = home + rng.uniform(-0.1, 0.1, 2), home + rng.uniform(-0.1, 0.1, 2)
+    size = np.array([0.04, 0.03, 0.025]) if geom == "box" else np.array([0.045, 0.025, 0.0])
+    z = scene.TABLE_TOP + (size[2] if geom == "box" else size[1])
+    s = np.linspace(0.0, 1.0, steps)[:, None]
+    xy = start + s * (goal - start) + 0.01 * np.sin(7 * s) * rng.normal(size=2)
+    yaw = rng.uniform(-np.pi, np.pi) + 1.5 * s[:, 0]
+    masks = masks_np.object_mask(geom, np.broadcast_to(size, (steps, 3)), xy, yaw, np.full(steps, z))
+    return masks, masks_np.object_mask(geom, size, goal, yaw[-1] + 0.3, z)
+
+
+@pytest.mark.parametrize("kind", AGENT_KINDS)
+def test_numpy_and_torch_match_jax_over_an_episode(kind, exported, jax_encode):
+    policy, nets, path = exported[kind]
+    act = jax.jit(lambda carry, obs: nets.act(policy.actor_params, carry, obs, jax.random.PRNGKey(0), True))
+    np_policy = NumpyPolicy.from_file(path)
+    np_int = NumpyPolicy.from_file(path)  # the same policy through act(): a_s decoded to substeps
+    others = [np_policy]
+    if HAVE_TORCH:
+        from export.torch_policy import TorchPolicy
+
+        others.append(TorchPolicy.from_file(path))
+    geom = "box" if kind in ("vpm", "ugru") else "cylinder"
+    masks, goal_mask = _moving_object(geom, AGENT_KINDS.index(kind))
+    assert len({m.tobytes() for m in masks}) > 30 and masks.any(axis=(1, 2)).all()
+    # The flange follows the JAX policy's actions (closed loop, as in an episode), with observation noise.
+    cfg, rng = EnvConfig(), np.random.default_rng(1)
+    ee = scene.home_flange_pos()[:2].copy()
+    carry = nets.init_carry(1)
+    z_goal = jax_encode(policy.encoder_params, goal_mask[None])
+    worst = [0.0] * len(others)
+    for t in range(50):
+        ee_obs = ee + cfg.obs_noise * rng.normal(size=2)
+        step = {"ee_xy": jnp.asarray(ee_obs[None], jnp.float32),
+                "z_obj": jax_encode(policy.encoder_params, masks[t][None]), "z_goal": z_goal}
+        a_jax, carry = act(carry, step)
+        a_jax = np.asarray(a_jax[0])
+        raw = [p.act_raw(masks[t], goal_mask, ee_obs) for p in others]
+        for i, a in enumerate(raw):
+            assert a.shape == (3,) and np.all(np.abs(a) <= 1.0)
+            worst[i] = max(worst[i], float(np.max(np.abs(a - a_jax))))
+        a_x, a_y, n = np_int.act(masks[t], goal_mask, ee_obs)
+        assert (a_x, a_y) == (float(raw[0][0]), float(raw[0][1]))
+        assert isinstance(n, int) and n == int(jax_decode_substeps(jnp.float32(raw[0][2]), cfg.substeps))
+        ee = np.clip(ee + 0.05 * a_jax[:2], [cfg.workspace_x[0], cfg.workspace_y[0]],
+                     [cfg.workspace_x[1], cfg.workspace_y[1]])
+    names = ["numpy", "torch"][: len(worst)]
+    print(f"{kind}: max |action - JAX action| over 50 steps: {dict(zip(names, worst))}")
+    assert max(worst) < ATOL, dict(zip(names, worst))
+
+
+def test_encoder_matches_jax_on_a_batch(exported, encoder_params, jax_encode):
+    rng = np.random.default_rng(0)
+    masks = np.zeros((6, 64, 64), bool)
+    for m in masks:
+        r, c = rng.integers(0, 44, 2)
+        h, w = rng.integers(5, 20, 2)
+        m[r : r + h, c : c + w] = True
+    p = NumpyPolicy.from_file(exported["vpm"][2])
+    z = p.encode(masks)
+    assert z.shape == (6, 6) and z.dtype == np.float32
+    np.testing.assert_allclose(z, np.asarray(jax_encode(encoder_params, masks)), atol=ATOL)
+    assert p.encode(masks[0]).shape == (6,)
+    np.testing.assert_array_equal(p.encode(masks.reshape(2, 3, 64, 64)).reshape(6, 6), z)
+
+
+def test_goal_latent_is_cached_and_recomputed_on_change(exported):
+    p = NumpyPolicy.from_file(exported["ugru"][2])
+    calls = []
+    encode = p.encode
+    p.encode = lambda m: calls.append(m.shape) or encode(m)
+    obj = np.zeros((64, 64), bool)
+    obj[20:30, 20:30] = True
+    goal = np.roll(obj, 8, axis=1)
+    for _ in range(3):
+        p.act(obj, goal, np.array([0.4, 0.0]))
+    assert len(calls) == 4  # one goal encoding, three object encodings
+    p.act(obj, np.roll(goal, 3, axis=0), np.array([0.4, 0.0]))
+    assert len(calls) == 6
+    with pytest.raises(ValueError, match="object_mask must have shape"):
+        p.act(obj[:32], goal, np.zeros(2))
+    with pytest.raises(ValueError, match="ee_xy"):
+        p.act(obj, goal, np.array([np.nan, 0.0]))
+
+
+def test_reset_restarts_the_memory(exported):
+    for kind in ("stacked", "ugru"):
+        p = NumpyPolicy.from_file(exported[kind][2])
+        obj = np.zeros((64, 64), bool)
+        obj[10:25, 30:40] = True
+        goal = np.roll(obj, 10, axis=0)
+        first = [p.act_raw(np.roll(obj, t, axis=1), goal, np.array([0.4, 0.01 * t])) for t in range(4)]
+        p.reset()
+        again = [p.act_raw(np.roll(obj, t, axis=1), goal, np.array([0.4, 0.01 * t])) for t in range(4)]
+        np.testing.assert_array_equal(np.stack(first), np.stack(again))
+        assert not np.allclose(first[0], first[3])  # the memory does carry something
+
+
+def test_substep_decoding_matches_the_environment():
+    lo_hi = EnvConfig().substeps
+    values = [-2.0, -1.0, -0.999, 0.0, 0.5, 0.999999, 1.0, 3.0] + [a_s_for(n) for n in (10, 11, 305, 599, 600)]
+    values += list(np.linspace(-1, 1, 1001, dtype=np.float32))
+    for a in values:
+        assert decode_substeps(a, lo_hi) == int(jax_decode_substeps(jnp.float32(a), lo_hi)), a
+    assert decode_substeps(-1.0, (1, 5)) == 1 and decode_substeps(1.0, (1, 5)) == 5
+
+
+# --- the file format -------------------------------------------------------------------------------
+def test_metadata_record(exported):
+    pf = pfile.load_npz(exported["egru"][2])
+    m = pf.metadata
+    assert m["format"] == pfile.FORMAT and m["format_version"] == 1
+    assert m["package_version"] == importlib.metadata.version("mjx-push")
+    assert m["agent"]["kind"] == "egru" and m["agent"]["gru_hidden"] == 32
+    assert m["observation"]["flat_order"] == ["ee_xy", "z_obj", "z_goal"]
+    assert m["observation"]["gru_input_order"] == ["z_obj", "z_goal", "ee_xy"]
+    assert m["observation"]["stack"] == 5
+    cfg = EnvConfig()
+    assert m["action"]["substeps"] == list(cfg.substeps) and m["action"]["action_scale"] == cfg.action_scale
+    assert m["action"]["workspace_x"] == list(cfg.workspace_x)
+    assert abs(m["action"]["home_flange_z"] - 0.5905) < 1e-3
+    assert m["camera"]["image_size"] == 64 and m["camera"]["fovy_deg"] == 65.0
+    assert "columns grow with world +x" in m["camera"]["pixel_convention"]
+    assert "curve" not in m["encoder"]["record"]
+    assert m["scores"] == {"best_eval_mean_reward": -42.0, "best_eval_success_rate": None}  # NaN -> null
+    assert m["run_config"]["agent"] == "egru"
+    assert all(a.dtype == np.float32 for a in pf.arrays.values())
+    assert "encoder/logvar/kernel" not in pf.arrays
+
+
+def _rewrite(src: Path, dst: Path, mutate) -> Path:
+    with np.load(src) as z:
+        arrays = {k: z[k] for k in z.files}
+    mutate(arrays)
+    with open(dst, "wb") as f:
+        np.savez(f, **arrays)
+    return dst
+
+
+def _set_meta(arrays, **fields):
+    meta = json.loads(arrays[pfile.METADATA_KEY].tobytes())
+    meta.update(fields)
+    arrays[pfile.METADATA_KEY] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
+
+
+def test_load_errors_name_the_file_and_the_problem(exported, tmp_path):
+    src = exported["ugru"][2]
+    data = src.read_bytes()
+    cases = {
+        "not found": tmp_path / "missing.npz",
+        "not an .npz": tmp_path / "text.npz",
+        "truncated": tmp_path / "truncated.npz",
+        "lacks 1 array": _rewrite(src, tmp_path / "missing_array.npz", lambda a: a.pop("actor/mean_head/bias")),
+        "has shape": _rewrite(src, tmp_path / "shape.npz",
+                              lambda a: a.update({"actor/features/cell/hn/kernel": np.zeros((32, 31), np.float32)})),
+        "format version 2": _rewrite(src, tmp_path / "version.npz", lambda a: _set_meta(a, format_version=2)),
+        "no '__metadata__'": _rewrite(src, tmp_path / "nometa.npz", lambda a: a.pop(pfile.METADATA_KEY)),
+        "not an mjx-push NumPy policy": _rewrite(src, tmp_path / "fmt.npz", lambda a: _set_meta(a, format="other")),
+        "dtype float64": _rewrite(src, tmp_path / "f64.npz",
+                                  lambda a: a.update({"encoder/mean/bias": a["encoder/mean/bias"].astype(np.float64)})),
+        "non-finite": _rewrite(src, tmp_path / "nan.npz",
+                               lambda a: a.update({"encoder/mean/bias": np.full(6, np.nan, np.float32)})),
+        "does not describe": _rewrite(src, tmp_path / "extra.npz", lambda a: a.update({"extra": np.zeros(1, np.float32)})),
+    }
+    (tmp_path / "text.npz").write_text("not a zip at all")
+    (tmp_path / "truncated.npz").write_bytes(data[: len(data) // 2])
+    for problem, path in cases.items():
+        with pytest.raises(ValueError, match=problem) as err:
+            pfile.load_npz(path)
+        assert str(path) in str(err.value)
+
+
+def test_corrupt_member_is_reported(exported, tmp_path):
+    src = exported["vpm"][2]
+    with zipfile.ZipFile(src) as z:
+        info = z.getinfo("encoder/Conv_3/kernel.npy")
+    data = bytearray(src.read_bytes())
+    data[info.header_offset + 200 : info.header_offset + 264] = b"\xff" * 64  # inside the array data
+    bad = tmp_path / "corrupt.npz"
+    bad.write_bytes(bytes(data))
+    with pytest.raises(ValueError, match="corrupt"):
+        pfile.load_npz(bad)
+
+
+def test_export_rejects_a_non_npz_name(exported, tmp_path):
+    with pytest.raises(ValueError, match=r"\.npz"):
+        pfile.export_policy(exported["vpm"][0], tmp_path / "policy.bin")
+
+
+def test_loading_and_acting_never_import_jax(exported):
+    code = (
+        "import sys, numpy as np\n"
+        "from export.numpy_policy import NumpyPolicy\n"
+        f"p = NumpyPolicy.from_file({str(exported['egru'][2])!r})\n"
+        "m = np.zeros((64, 64), bool); m[20:30, 20:30] = True\n"
+        "print(p.act(m, np.roll(m, 5, axis=0), np.array([0.4, 0.0])))\n"
+        "bad = [k for k in ('jax', 'jaxlib', 'flax', 'torch', 'mujoco') if k in sys.modules]\n"
+        "assert not bad, bad\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+
+
+# --- torch -----------------------------------------------------------------------------------------
+@pytest.mark.skipif(HAVE_TORCH, reason="torch is installed: the missing-torch message cannot be shown")
+def test_torch_missing_gives_an_install_hint(exported):
+    from export.torch_policy import TorchPolicy
+
+    with pytest.raises(ImportError, match=r'pip install -e "\.\[torch\]"'):
+        TorchPolicy.from_file(exported["vpm"][2])
+
+
+@pytest.mark.skipif(not HAVE_TORCH, reason=NO_TORCH)
+def test_torch_module_batches_like_the_numpy_policy(exported):
+    import torch
+
+    from export.policy_file import load_npz
+    from export.torch_policy import build_net
+
+    pf = load_npz(exported["stacked"][2])
+    net = build_net(pf)
+    assert isinstance(net, torch.nn.Module)
+    p = NumpyPolicy(pf)
+    rng = np.random.default_rng(1)
+    masks = rng.random((3, 64, 64)) < 0.2
+    ee = rng.uniform(0.3, 0.5, (3, 2)).astype(np.float32)
+    with torch.no_grad():
+        z = net.encode(torch.from_numpy(masks.astype(np.float32)))
+        a, carry = net.step(net.initial_carry(3), torch.from_numpy(ee), z, z.flip(0))
+    np.testing.assert_allclose(z.numpy(), p.encode(masks), atol=ATOL)
+    for i in range(3):
+        p.reset()
+        np.testing.assert_allclose(a[i].numpy(), p.step_latent(p.encode(masks[i]), p.encode(masks[2 - i]), ee[i]),
+                                   atol=ATOL)
+
+
+# --- the commands ----------------------------------------------------------------------------------
+def test_export_command_from_a_run_directory(exported, tmp_path):
+    policy, _, direct = exported["stacked"]
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    save_policy(run_dir / "best_policy", policy.config, policy.actor_params, policy.encoder_params, policy.scores)
+    out = tmp_path / "cli.npz"
+    meta = Export(run_dir, out).run()
+    assert meta["agent"]["kind"] == "stacked"
+    a, b = pfile.load_npz(out), pfile.load_npz(direct)
+    assert a.arrays.keys() == b.arrays.keys()
+    for k in a.arrays:
+        np.testing.assert_array_equal(a.arrays[k], b.arrays[k])
+    assert Export(run_dir / "best_policy.json", tmp_path / "again.npz").run()["agent"]["kind"] == "stacked"
+    with pytest.raises(ValueError, match="source"):
+        Export(tmp_path / "nothing", tmp_path / "x.npz").run()
+    with pytest.raises(ValueError, match="source: run directory"):
+        Export(tmp_path, tmp_path / "x.npz").run()
+    with pytest.raises(ValueError, match="out must be an .npz"):
+        Export(run_dir, tmp_path / "x.zip").run()
+
+
+def test_deploy_command_writes_the_metrics(exported, tmp_path):
+    # a_s pinned at -1 (10 substeps per step) keeps the two simulated episodes short.
+    policy = exported["egru"][0]
+    actor = jax.tree.map(lambda v: v, policy.actor_params)
+    actor["params"]["mean_head"]["bias"] = actor["params"]["mean_head"]["bias"].at[2].set(-100.0)
+    quick = tmp_path / "quick.npz"
+    pfile.export_policy(Policy(policy.config, actor, policy.encoder_params, policy.scores), quick)
+    out = tmp_path / "deploy.json"
+    result = Deploy(quick, episodes=2, seed=3, setting="difficult", shape="cylinder",
+                    mask_source="analytic", out_json=out).run()
+    saved = json.loads(out.read_text())
+    assert saved["summary"] == result["summary"]
+    for key in ("success_rate", "mean_reward", "overshoot", "distance"):
+        assert set(saved["summary"][key]) == {"mean", "sem", "n"} and saved["summary"][key]["n"] == 2
+    assert -50.0 <= saved["summary"]["mean_reward"]["mean"] <= 0.0
+    assert [e["seed"] for e in saved["episodes"]] == [3, 4]
+    assert {e["geom_type"] for e in saved["episodes"]} == {"cylinder"}
+    assert saved["mask_source"] == "analytic" and saved["setting"] == "difficult"
+
+
+@pytest.mark.parametrize("field, value, match", [
+    ("episodes", 0, "episodes"),
+    ("setting", "hard", "setting"),
+    ("shape", "triangle", "shape"),
+    ("mask_source", "camera", "mask_source"),
+    ("sim", "mjx", "sim"),
+    ("video", Path("out.avi"), "video"),
+    ("policy", Path("/nonexistent/policy.npz"), "policy: policy file not found"),
+])
+def test_deploy_rejects_bad_arguments(exported, field, value, match):
+    args = {"policy": exported["vpm"][2], "episodes": 1, "mask_source": "analytic", field: value}
+    with pytest.raises(ValueError, match=match):
+        Deploy(**args).run()
+
+
+# --- metrics ---------------------------------------------------------------------------------------
+def test_summarize_mean_and_standard_error():
+    eps = [
+        {"success": True, "reward": -10, "overshoot": 0, "distance": 3},
+        {"success": False, "reward": -50, "overshoot": 2, "distance": 0},
+        {"success": True, "reward": -20, "overshoot": 1, "distance": 0},
+        {"success": True, "reward": -30, "overshoot": 1, "distance": 1},
+    ]
+    s = summarize(eps)
+    assert s["success_rate"] == {"mean": 0.75, "sem": 0.25, "n": 4}  # sd 0.5 (ddof 1) / sqrt(4)
+    assert s["mean_reward"]["mean"] == -27.5
+    assert math.isclose(s["mean_reward"]["sem"], math.sqrt(875 / 3 / 4), rel_tol=1e-12)
+    assert s["overshoot"]["mean"] == 1.0 and math.isclose(s["overshoot"]["sem"], math.sqrt(2 / 3 / 4), rel_tol=1e-12)
+    assert s["distance"]["mean"] == 1.0 and math.isclose(s["distance"]["sem"], math.sqrt(6 / 3 / 4), rel_tol=1e-12)
+    one = summarize(eps[:1])
+    assert one["mean_reward"] == {"mean": -10.0, "sem": 0.0, "n": 1}
+    with pytest.raises(ValueError, match="at least one"):
+        summarize([])
+    with pytest.raises(ValueError, match="episode 1 has no 'distance'"):
+        summarize([eps[0], {"success": True, "reward": -1, "overshoot": 0}])

@@ -1,0 +1,207 @@
+"""The paper's evaluation protocol on the MJX scene (SPEC section 7).
+
+Deterministic policy; `episodes` test episodes per setting and shape, drawn from fixed seeds that do
+not depend on the policy, so every agent meets the same objects, starts and goals: episode i's object
+is `objects.sample(fold_in(PRNGKey(seed), i), ...)` and its observation noise key likewise. Metrics
+per setting: success rate (final distance < tau), mean episode reward (sum of the 50 sparse rewards),
+mean overshoot and distance corrections (counted per 1 ms substep by the environment), each with its
+standard error of the mean.
+
+Settings: "standard" (Table I), "difficult" (the paper's figure: mass U[0.001, 0.01], sliding friction
+U[0.2, 0.3], minimum full height 0.052), or "custom" with the ranges given. Shapes: "cylinder",
+"square", "rectangular", or "all" (the episode index decides: even -> cuboid, odd -> cylinder, so the
+split is exact and independent of the batch size).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mjx_push import encoder as enc
+from mjx_push import objects
+from mjx_push.env import EnvConfig, PushEnv
+from train.networks import make_networks
+from train.run import Policy
+
+SETTINGS = ("standard", "difficult", "custom")
+SHAPES = ("all", "cylinder", "square", "rectangular", "cuboid")
+METRICS = ("success", "reward", "overshoot", "distance")
+DIFFICULT = dict(mass=(0.001, 0.01), friction=(0.2, 0.3), min_height=0.052)
+
+
+@dataclasses.dataclass(frozen=True)
+class EvalSpec:
+    setting: str = "difficult"
+    shape: str = "all"
+    episodes: int = 100
+    seed: int = 1_000_003  # distinct from training seeds; shared by every agent
+    batch: int = 20  # episodes simulated in parallel (does not change the episodes)
+    mass: tuple[float, float] | None = None  # custom setting: ranges replacing Table I's
+    friction: tuple[float, float] | None = None
+    min_height: float | None = None
+    record: int = 0  # keep the per-step trajectories of the first `record` episodes (for videos)
+
+    def __post_init__(self):
+        if self.setting not in SETTINGS:
+            raise ValueError(f"setting must be one of {SETTINGS}, got {self.setting!r}")
+        if self.shape not in SHAPES:
+            raise ValueError(f"shape must be one of {SHAPES}, got {self.shape!r}")
+        if not (isinstance(self.episodes, int) and self.episodes > 0):
+            raise ValueError(f"episodes must be a positive integer, got {self.episodes!r}")
+        if not (isinstance(self.batch, int) and self.batch > 0):
+            raise ValueError(f"batch must be a positive integer, got {self.batch!r}")
+        custom = any(v is not None for v in (self.mass, self.friction, self.min_height))
+        if custom and self.setting != "custom":
+            raise ValueError("mass / friction / min_height ranges need setting 'custom'")
+        if not 0 <= self.record <= self.episodes:
+            raise ValueError(f"record must be in [0, episodes], got {self.record}")
+
+    def object_config(self, base: objects.ObjectConfig | None = None) -> objects.ObjectConfig:
+        """The object distribution; uniform sampling whatever the agent trained on."""
+        cfg = dataclasses.replace(base or objects.ObjectConfig(), mode="uniform")
+        if self.setting == "difficult":
+            cfg = dataclasses.replace(cfg, **DIFFICULT)
+        elif self.setting == "custom":
+            fields = {k: v for k, v in (("mass", self.mass), ("friction", self.friction),
+                                        ("min_height", self.min_height)) if v is not None}
+            cfg = dataclasses.replace(cfg, **fields)
+        return cfg
+
+
+def sem(x: np.ndarray) -> float:
+    """Standard error of the mean: sample standard deviation (ddof=1) / sqrt(n); 0 for one sample."""
+    x = np.asarray(x, dtype=np.float64)
+    return float(np.std(x, ddof=1) / math.sqrt(len(x))) if len(x) > 1 else 0.0
+
+
+def summarize(per_episode: dict) -> dict:
+    """{metric: {"mean", "sem", "n"}} over per-episode arrays (success, reward, overshoot, distance)."""
+    return {k: {"mean": float(np.mean(per_episode[k])), "sem": sem(per_episode[k]), "n": int(len(per_episode[k]))}
+            for k in METRICS}
+
+
+def _geom_types(shape: str) -> tuple[str, ...]:
+    return {"all": ("box", "cylinder"), "cylinder": ("cylinder",)}.get(shape, ("box",))
+
+
+def _filter(shape: str, geom_type: str) -> str:
+    if shape == "all":
+        return "cuboid" if geom_type == "box" else "cylinder"
+    return shape
+
+
+class Evaluator:
+    """Compiled episode runners for one environment config and agent kind; reusable across policies
+    and settings of the same shapes (the objects are inputs, not constants)."""
+
+    def __init__(self, env_config: EnvConfig, agent_config, batch: int):
+        self.env_config = env_config
+        self.nets = make_networks(agent_config)
+        self.batch = batch
+        self._envs: dict[str, PushEnv] = {}
+        self._fns: dict[str, Any] = {}
+
+    def env(self, geom_type: str) -> PushEnv:
+        if geom_type not in self._envs:
+            cfg = dataclasses.replace(self.env_config, objects=dataclasses.replace(
+                self.env_config.objects, shape="cylinder" if geom_type == "cylinder" else "cuboid"))
+            self._envs[geom_type] = PushEnv(cfg, geom_type)
+        return self._envs[geom_type]
+
+    def episode_fn(self, geom_type: str):
+        if geom_type in self._fns:
+            return self._fns[geom_type]
+        env, nets, T = self.env(geom_type), self.nets, self.env_config.episode_length
+
+        def run(actor_params, encoder_params, params, keys):
+            s = jax.vmap(env.reset_with)(keys, params)
+            z_goal = enc.encode(encoder_params, s.info["goal_mask"])
+            qpos0 = s.pipeline_state.qpos
+
+            def body(c, _):
+                s, carry = c
+                obs = {"ee_xy": s.obs["ee_xy"], "z_obj": enc.encode(encoder_params, s.obs["object_mask"]),
+                       "z_goal": z_goal}
+                action, carry = nets.act(actor_params, carry, obs, jax.random.PRNGKey(0), True)
+                s = jax.vmap(env.step)(s, action)
+                return (s, carry), (s.reward, s.pipeline_state.qpos, action, s.info["substeps"])
+
+            (s, _), (rewards, qpos, actions, substeps) = jax.lax.scan(
+                body, (s, nets.init_carry(keys.shape[0])), None, length=T)
+            dist = jnp.linalg.norm(s.info["object_xy"] - s.info["goal_xy"], axis=-1)
+            invalid = s.info["episode_invalid"]
+            return {
+                "success": (~invalid & (dist < env.config.success_tau)).astype(jnp.float32),
+                "reward": jnp.where(invalid, -float(T), jnp.sum(rewards, axis=0)),
+                "overshoot": s.info["corrections"].overshoot.astype(jnp.float32),
+                "distance": s.info["corrections"].distance.astype(jnp.float32),
+                "final_distance": dist,
+                "invalid": invalid,
+                "qpos": jnp.concatenate([qpos0[None], qpos], axis=0).swapaxes(0, 1),  # [B, T+1, nq]
+                "action": actions.swapaxes(0, 1),
+                "substeps": substeps.swapaxes(0, 1),
+            }
+
+        self._fns[geom_type] = jax.jit(run)
+        return self._fns[geom_type]
+
+    def episode_params(self, spec: EvalSpec, geom_type: str, indices: np.ndarray):
+        cfg = dataclasses.replace(spec.object_config(self.env_config.objects), shape=_filter(spec.shape, geom_type))
+        home = self.env(geom_type).home_flange[:2]
+        base = jax.random.PRNGKey(spec.seed)
+        keys = jax.vmap(lambda i: jax.random.fold_in(base, i))(jnp.asarray(indices))
+        k_obj = jax.vmap(lambda k: jax.random.fold_in(k, 0))(keys)
+        k_env = jax.vmap(lambda k: jax.random.fold_in(k, 1))(keys)
+        params = jax.vmap(lambda k: objects.sample(k, cfg, geom_type, home))(k_obj)
+        return params, k_env
+
+    def evaluate(self, policy: Policy, spec: EvalSpec) -> dict:
+        """Per-episode arrays (in episode order) and their summary."""
+        per: dict[str, list] = {}
+        order: list[np.ndarray] = []
+        recorded: list[dict] = []
+        for geom_type in _geom_types(spec.shape):
+            idx = np.arange(spec.episodes)
+            if spec.shape == "all":
+                idx = idx[idx % 2 == (0 if geom_type == "box" else 1)]
+            fn = self.episode_fn(geom_type)
+            for start in range(0, len(idx), self.batch):
+                chunk = idx[start:start + self.batch]
+                pad = self.batch - len(chunk)  # keep one compiled batch size
+                padded = np.concatenate([chunk, np.repeat(chunk[-1:], pad)])
+                params, keys = self.episode_params(spec, geom_type, padded)
+                out = jax.device_get(fn(policy.actor_params, policy.encoder_params, params, keys))
+                for k, v in out.items():
+                    if k in ("qpos", "action", "substeps"):
+                        continue
+                    per.setdefault(k, []).append(np.asarray(v)[: len(chunk)])
+                for j, i in enumerate(chunk):
+                    if i < spec.record:
+                        recorded.append({"episode": int(i), "geom_type": geom_type,
+                                         "params": jax.tree.map(lambda a: np.asarray(a[j]), params),
+                                         "qpos": out["qpos"][j], "action": out["action"][j],
+                                         "substeps": out["substeps"][j]})
+                order.append(chunk)
+        perm = np.argsort(np.concatenate(order), kind="stable")
+        arrays = {k: np.concatenate(v)[perm] for k, v in per.items()}
+        return {"per_episode": arrays, "summary": summarize(arrays),
+                "invalid_episodes": int(np.sum(arrays["invalid"])),
+                "recorded": sorted(recorded, key=lambda r: r["episode"])}
+
+
+@functools.lru_cache(maxsize=8)
+def evaluator_for(env_config: EnvConfig, agent_config, batch: int) -> Evaluator:
+    """A shared Evaluator per (environment, agent kind, batch): compiled once per process."""
+    return Evaluator(env_config, agent_config, batch)
+
+
+def evaluate(policy: Policy, spec: EvalSpec) -> dict:
+    ev = evaluator_for(policy.config.env, policy.config.train.agent, min(spec.batch, spec.episodes))
+    return ev.evaluate(policy, spec)

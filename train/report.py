@@ -1,0 +1,144 @@
+"""Markdown report and figures of the paper's comparison (VPM, Stacked, uGRU, eGRU) per shape.
+
+`results[agent][shape]` is a list with one evaluation summary per training seed (as returned by
+`train.evaluate.summarize`: {metric: {"mean", "sem", "n"}}). With one seed the error bars are the
+standard error over test episodes; with several, the standard error across the seeds' means.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from train.evaluate import METRICS, sem
+
+LABELS = {"success": "success rate", "reward": "mean episode reward", "overshoot": "overshoot corrections",
+          "distance": "distance corrections"}
+AGENT_NAMES = {"vpm": "VPM", "stacked": "Stacked", "ugru": "uGRU", "egru": "eGRU"}
+SHAPE_NAMES = {"cylinder": "cylinder", "square": "square cuboid", "rectangular": "rectangular cuboid",
+               "all": "all shapes", "cuboid": "cuboid"}
+
+
+def combine(summaries: list[dict]) -> dict:
+    """One {metric: {"mean", "sem", "n_seeds", "n_episodes"}} from the per-seed summaries."""
+    out = {}
+    for m in METRICS:
+        means = np.array([s[m]["mean"] for s in summaries])
+        err = summaries[0][m]["sem"] if len(summaries) == 1 else sem(means)
+        out[m] = {"mean": float(means.mean()), "sem": float(err), "n_seeds": len(summaries),
+                  "n_episodes": int(sum(s[m]["n"] for s in summaries))}
+    return out
+
+
+def table(results: dict) -> str:
+    """Markdown table: one row per (shape, agent)."""
+    lines = ["| shape | agent | success rate | mean reward | overshoot corr. | distance corr. |",
+             "|---|---|---|---|---|---|"]
+    shapes = list(next(iter(results.values())).keys())
+    for shape in shapes:
+        for agent in results:
+            c = combine(results[agent][shape])
+            s = c["success"]
+            cells = [f"{100 * s['mean']:.0f} ± {100 * s['sem']:.0f} %"]
+            cells += [f"{c[m]['mean']:.2f} ± {c[m]['sem']:.2f}" for m in ("reward", "overshoot", "distance")]
+            lines.append(f"| {SHAPE_NAMES.get(shape, shape)} | {AGENT_NAMES.get(agent, agent)} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def bar_figure(results: dict, path: Path) -> None:
+    """2x2 bar charts (success, reward, overshoot, distance) of agents per shape, with SEM error bars."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    agents = list(results)
+    shapes = list(results[agents[0]])
+    fig, axes = plt.subplots(2, 2, figsize=(10, 7))
+    width = 0.8 / len(agents)
+    for ax, m in zip(axes.flat, METRICS):
+        for j, agent in enumerate(agents):
+            stats = [combine(results[agent][s])[m] for s in shapes]
+            scale = 100.0 if m == "success" else 1.0
+            ax.bar(np.arange(len(shapes)) + (j - (len(agents) - 1) / 2) * width,
+                   [scale * s["mean"] for s in stats], width, yerr=[scale * s["sem"] for s in stats],
+                   capsize=3, label=AGENT_NAMES.get(agent, agent))
+        ax.set_xticks(np.arange(len(shapes)), [SHAPE_NAMES.get(s, s) for s in shapes], fontsize=8)
+        ax.set_title(LABELS[m] + (" (%)" if m == "success" else ""))
+        ax.grid(axis="y", alpha=0.3)
+    axes.flat[0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def friction_force_samples(n: int = 200_000, seed: int = 0) -> dict[str, np.ndarray]:
+    """Sliding friction force F = m * mu * g of the two samplers (uniform; improved), drawn with the
+    project's own samplers under Table I's ranges."""
+    import jax
+
+    from mjx_push import objects, scene
+
+    home = scene.home_flange_pos()[:2]
+    out = {}
+    for mode in ("uniform", "improved"):
+        cfg = objects.ObjectConfig(mode=mode, shape="cylinder")
+        keys = jax.random.split(jax.random.PRNGKey(seed), n)
+        p = jax.jit(jax.vmap(lambda k: objects.sample(k, cfg, "cylinder", home)))(keys)
+        out[mode] = np.asarray(p.mass * p.friction[:, 0] * 9.81)
+    return out
+
+
+def friction_figure(path: Path, samples: dict[str, np.ndarray] | None = None) -> None:
+    """Densities of the sliding friction force under both samplers (the paper's Fig. 4)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    samples = samples or friction_force_samples()
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.5), sharey=False)
+    hi = max(float(v.max()) for v in samples.values())
+    bins = np.linspace(0.0, hi, 80)
+    for ax, (mode, f) in zip(axes, samples.items()):
+        ax.hist(f, bins=bins, density=True, color="tab:blue" if mode == "uniform" else "tab:orange")
+        ax.set_title(f"{mode} sampling")
+        ax.set_xlabel("sliding friction force m * mu * g (N)")
+        ax.set_ylabel("density")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def write_report(out_dir: Path, results: dict, meta: dict) -> Path:
+    """report.md, results.json, metrics.png, friction_force.png in `out_dir`."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    bar_figure(results, out_dir / "metrics.png")
+    friction_figure(out_dir / "friction_force.png")
+    combined = {a: {s: combine(v) for s, v in per_shape.items()} for a, per_shape in results.items()}
+    (out_dir / "results.json").write_text(json.dumps({"meta": meta, "per_seed": results, "combined": combined},
+                                                     indent=2) + "\n")
+    seeds = meta.get("seeds", 1)
+    err = "standard error across seeds" if seeds > 1 else "standard error over test episodes"
+    text = f"""# mjx-push reproduction: {meta.get('budget', '?')} budget
+
+Agents trained with `mjx-push reproduce --budget {meta.get('budget')} --seeds {seeds}`, each evaluated on
+{meta.get('episodes')} deterministic episodes per shape in the **{meta.get('setting')}** setting
+(the same seeds for every agent). Values are mean ± {err}.
+
+{table(results)}
+
+![metrics per shape and agent](metrics.png)
+
+Sliding friction force densities of the two samplers (paper Fig. 4), drawn from `mjx_push.objects`:
+
+![friction force densities](friction_force.png)
+
+Wall time: {meta.get('wall_s', 0) / 60:.1f} min ({meta.get('machine', '')}).
+"""
+    path = out_dir / "report.md"
+    path.write_text(text)
+    return path
