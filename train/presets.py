@@ -65,7 +65,9 @@ def env_for(agent: str, objects_cfg: objects.ObjectConfig | None = None, **env_f
 
 
 _LOOPS = {
-    "smoke": dict(num_envs=8, total_env_steps=800, warmup_env_steps=400, utd=0.25, eval_every_env_steps=800,
+    # One batch of random-action episodes, 100 updates, one evaluation: two rollouts in all, since on
+    # 2 CPU cores compilation plus each 50-step rollout (~40 s) is the whole cost.
+    "smoke": dict(num_envs=8, total_env_steps=400, warmup_env_steps=400, utd=0.25, eval_every_env_steps=400,
                   eval_episodes=8),
     "paper": dict(num_envs=10, total_env_steps=29_000, warmup_env_steps=10_000, utd=1.0,
                   eval_every_env_steps=5_000, eval_episodes=100),
