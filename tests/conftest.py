@@ -12,7 +12,9 @@ import pytest  # noqa: E402
 from tests.helpers import Sim  # noqa: E402
 
 # Persistent compilation cache: repeated local runs skip most compilation; a fresh CI run fills it.
-jax.config.update("jax_compilation_cache_dir", os.path.expanduser("~/.cache/mjx_push/jax_tests"))
+# MJX_PUSH_TEST_CACHE points it elsewhere (e.g. an empty folder to time a cold run, as CI sees it).
+jax.config.update("jax_compilation_cache_dir",
+                  os.environ.get("MJX_PUSH_TEST_CACHE", os.path.expanduser("~/.cache/mjx_push/jax_tests")))
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 2.0)
 
 

@@ -302,12 +302,10 @@ class Reproduce:
 
 def main(argv: list[str] | None = None) -> int:
     commands = {"train": Train, "eval": Eval, "reproduce": Reproduce, "train-encoder": TrainEncoder, "demo": Demo}
-    try:  # export's commands (export, deploy); the CLI is the one place that composes all packages
-        from export.cli import COMMANDS as export_commands
+    # export's commands (export, deploy): the CLI is the one place that composes all three packages.
+    from export.cli import COMMANDS as export_commands
 
-        commands.update(export_commands)
-    except ImportError:
-        pass
+    commands.update(export_commands)
     try:
         cmd = tyro.extras.subcommand_cli_from_dict(commands, args=argv, prog="mjx-push")
         cmd.run()
