@@ -63,7 +63,7 @@ class Deploy:
     """episode i uses seed + i: the same objects for every policy"""
     setting: Literal["standard", "difficult"] = "standard"
     """standard: Table I objects; difficult: mass U[0.001, 0.01], friction U[0.2, 0.3], min height 0.052"""
-    shape: Literal["any", "cylinder", "square", "rectangular", "cuboid"] = "any"
+    shape: Literal["all", "any", "cylinder", "square", "rectangular", "cuboid"] = "all"
     mask_source: Literal["auto", "render", "analytic"] = "auto"
     """object masks: rendered under-table camera, the analytic projection, or render when possible"""
     video: Path | None = None
@@ -84,6 +84,8 @@ class Deploy:
             raise ValueError(f"episodes must be a positive integer, got {self.episodes!r}")
         if self.setting not in sim_eval.SETTINGS:
             raise ValueError(f"setting must be one of {sim_eval.SETTINGS}, got {self.setting!r}")
+        if self.shape == "all":  # `mjx-push eval`'s name for the mixed setting
+            self.shape = "any"
         if self.shape not in objects.SHAPE_FILTERS:
             raise ValueError(f"shape must be one of {objects.SHAPE_FILTERS}, got {self.shape!r}")
         if self.mask_source not in MASK_SOURCES:

@@ -18,7 +18,6 @@ eGRU differs from uGRU only in the environment: the improved force sampling (SPE
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 from typing import Literal
 
 from mjx_push import objects
@@ -35,7 +34,9 @@ class RunConfig:
     preset: str
     train: TrainConfig
     env: EnvConfig
-    encoder: str | None = None  # encoder weights (msgpack); None: the shipped pretrained encoder
+    # Encoder weights to train with (msgpack); None: the shipped pretrained encoder. Saved policies carry
+    # the weights themselves, so this is provenance once training is done.
+    encoder: str | None = None
 
     def __post_init__(self):
         if self.agent not in AGENT_KINDS:
@@ -53,8 +54,6 @@ class RunConfig:
             raise ValueError("train.replay.success_tau must equal env.success_tau")
         if self.env.objects.shape == "any" and self.train.loop.num_envs < 2:
             raise ValueError("train.loop.num_envs must be >= 2 with shape filter 'any' (one group per shape)")
-        if self.encoder is not None and not Path(self.encoder).is_file():
-            raise ValueError(f"encoder weights not found: {self.encoder}")
 
 
 def env_for(agent: str, objects_cfg: objects.ObjectConfig | None = None, **env_fields) -> EnvConfig:
