@@ -7,7 +7,8 @@ the same command after an interruption and it continues), then prints and writes
 `OUT/bench_train_paper.json`: the learning curve (evaluation success rate and mean reward against
 environment steps), the first batch's time (compilation + one batch), steady environment steps/s and
 gradient steps/s (from batches without evaluation), evaluation time, and the best scores.
-`--total-env-steps` shortens the run (and the curve) when the machine cannot afford the full budget.
+`--total-env-steps` shortens the run (and the curve) and `--eval-episodes` the evaluations when the
+machine cannot afford the full budget.
 """
 
 from __future__ import annotations
@@ -58,6 +59,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--agents", nargs="+", default=["egru", "vpm"])
     ap.add_argument("--total-env-steps", type=int, default=None)
+    ap.add_argument("--eval-episodes", type=int, default=None, help="fewer evaluation episodes than the preset's 100")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=Path("outputs/bench_paper"))
     args = ap.parse_args()
@@ -65,8 +67,8 @@ def main() -> None:
     results = {}
     for agent in args.agents:
         cfg = presets.make(agent, "paper", args.seed)
-        if args.total_env_steps:
-            cfg = presets.override(cfg, **{"loop.total_env_steps": args.total_env_steps})
+        cfg = presets.override(cfg, **{"loop.total_env_steps": args.total_env_steps,
+                                        "loop.eval_episodes": args.eval_episodes})
         run_dir = args.out / agent
         resume = (run_dir / "checkpoints").is_dir() and any((run_dir / "checkpoints").iterdir())
         if not (run_dir / "summary.json").is_file():
