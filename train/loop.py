@@ -8,7 +8,7 @@
   carry; uniform random actions during warm-up). Evaluation reuses it chunk by chunk.
 * ``learn(state, episodes, key)``: add the episodes to replay, then ``lax.scan`` over
   ``num_envs * episode_len * utd`` SAC updates (skipped until warm-up is over and replay holds at
-  least ``batch_size`` valid transitions). ``iteration`` = ``split_keys`` + ``rollout`` + ``learn``.
+  least ``batch_size`` valid transitions); ``split_keys`` derives the two keys from the state's.
 * ``evaluate(actor_params, key)``: ``eval_episodes`` deterministic episodes -> success rate, mean
   episode reward; ``select`` keeps the best actor params by mean reward (the reference's selection).
 
@@ -76,12 +76,9 @@ class Trainer:
     rollout: Callable  # (actor_params, key, random_actions, deterministic) -> (episodes, stats), num_envs
     split_keys: Callable[[TrainState], tuple[TrainState, jax.Array, jax.Array]]
     learn: Callable[[TrainState, dict, jax.Array], tuple[TrainState, dict]]
-    iteration: Callable[[TrainState], tuple[TrainState, dict]]  # split_keys + rollout + learn, in one
     evaluate: Callable[[Params, jax.Array], dict]
     select: Callable[[TrainState, dict], tuple[TrainState, dict]]
-    eval_and_select: Callable[[TrainState], tuple[TrainState, dict]]
     eval_key: jax.Array
-    eval_chunk_key: Callable
     num_eval_chunks: int
     total_updates: int
 
@@ -230,17 +227,7 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
         }
         return new_ts, metrics
 
-    def iteration(ts: TrainState) -> tuple[TrainState, dict]:
-        ts, k_collect, k_update = split_keys(ts)
-        random_actions = ts.env_steps < loop.warmup_env_steps
-        episodes, stats = rollout(ts.sac.actor_params, k_collect, random_actions, False)
-        ts, metrics = learn(ts, episodes, k_update)
-        return ts, {**{f"train/{k}": v for k, v in summarize(stats).items()}, **metrics}
-
     num_eval_chunks = -(-loop.eval_episodes // N)
-
-    def eval_chunk_key(c: int | jax.Array) -> jax.Array:
-        return jax.random.fold_in(eval_key, c)
 
     def evaluate(actor_params, key) -> dict:
         """``eval_episodes`` deterministic episodes, run as ceil(eval_episodes / num_envs) chunks of
@@ -262,9 +249,6 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
         )
         return ts, {**{f"eval/{k}": v for k, v in stats.items()}, "eval/improved": better}
 
-    def eval_and_select(ts: TrainState) -> tuple[TrainState, dict]:
-        return select(ts, evaluate(ts.sac.actor_params, eval_key))
-
     return Trainer(
         config=config,
         networks=nets,
@@ -273,12 +257,9 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
         rollout=rollout,
         split_keys=split_keys,
         learn=learn,
-        iteration=iteration,
         evaluate=evaluate,
         select=select,
-        eval_and_select=eval_and_select,
         eval_key=eval_key,
-        eval_chunk_key=eval_chunk_key,
         num_eval_chunks=num_eval_chunks,
         total_updates=total_updates,
     )

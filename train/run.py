@@ -34,6 +34,7 @@ from flax import serialization
 from mjx_push import encoder as enc
 from train import configio
 from train.loop import EnvAdapter, Runner, TrainState, make_train
+from train.loop import train as train_loop
 from train.presets import RunConfig
 
 POLICY_FORMAT = "mjx-push-policy"
@@ -262,35 +263,34 @@ def run(
     log = MetricLog(run_dir, resumed_from)
 
     t_start = time.perf_counter()
-    first_call_s: float | None = None
-    start = int(state.env_steps) // loop.env_steps_per_iteration
-    done_here = 0
+    clock = {"last": t_start, "first": None, "done": 0}
+
+    def on_batch(ts: TrainState, metrics: dict) -> bool:
+        """After each batch (and its evaluation): timing, logs, checkpoints; True stops the run."""
+        now = time.perf_counter()
+        dt, clock["last"] = now - clock["last"], now
+        clock["first"] = dt if clock["first"] is None else clock["first"]
+        metrics["wall_s"] = now - t_start
+        metrics["iteration_s"] = dt
+        metrics["env_steps_per_s"] = loop.env_steps_per_iteration / dt
+        metrics["updates_per_s"] = (loop.updates_per_iteration / dt) if metrics["learning"] else 0.0
+        log.write(metrics)
+        if on_iteration is not None:
+            on_iteration(metrics)
+        clock["done"] += 1
+        i = int(ts.env_steps) // loop.env_steps_per_iteration - 1
+        last = i == loop.num_iterations - 1
+        if last or "eval/mean_reward" in metrics or (i + 1) % checkpoint_every == 0:
+            ckpts.save(ts, cfg, {"history_rows": len(log.rows)})
+        return stop_after is not None and clock["done"] >= stop_after and not last
+
     try:
-        for i in range(start, loop.num_iterations):
-            t0 = time.perf_counter()
-            state, metrics = runner.iteration(state)
-            if runner.is_eval_iteration(i):
-                state, eval_metrics = runner.eval_and_select(state)
-                metrics.update(eval_metrics)
-            metrics = {k: np.asarray(v).item() for k, v in metrics.items()}
-            dt = time.perf_counter() - t0
-            if first_call_s is None:
-                first_call_s = dt
-            metrics["wall_s"] = time.perf_counter() - t_start
-            metrics["iteration_s"] = dt
-            metrics["env_steps_per_s"] = loop.env_steps_per_iteration / dt
-            metrics["updates_per_s"] = (loop.updates_per_iteration / dt) if metrics["learning"] else 0.0
-            log.write(metrics)
-            if on_iteration is not None:
-                on_iteration(metrics)
-            done_here += 1
-            last = i == loop.num_iterations - 1
-            if last or "eval/mean_reward" in metrics or (i + 1) % checkpoint_every == 0:
-                ckpts.save(state, cfg, {"history_rows": len(log.rows)})
-            if stop_after is not None and done_here >= stop_after and not last:
-                return {"stopped_at_env_steps": int(state.env_steps)}, state
+        state, _ = train_loop(None, cfg.train, adapter, callback=on_batch, state=state, runner=runner)
     finally:
         log.close()
+    if int(state.env_steps) < loop.num_iterations * loop.env_steps_per_iteration:
+        return {"stopped_at_env_steps": int(state.env_steps)}, state
+    first_call_s = clock["first"]
 
     scores = {
         "best_eval_mean_reward": float(state.best_eval_reward),
