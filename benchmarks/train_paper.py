@@ -63,7 +63,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=Path("outputs/bench_paper"))
     args = ap.parse_args()
-    console = Console()
+    console = Console(width=max(Console().width, 150))  # the table has nine columns
     results = {}
     for agent in args.agents:
         cfg = presets.make(agent, "paper", args.seed)
