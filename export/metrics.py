@@ -8,17 +8,14 @@ from __future__ import annotations
 
 import math
 
+from train.evaluate import sem
+
 METRICS = {"success_rate": "success", "mean_reward": "reward", "overshoot": "overshoot", "distance": "distance"}
 
 
 def mean_sem(values: list[float]) -> dict:
-    """{"mean", "sem", "n"} of `values` (at least one)."""
-    n = len(values)
-    mean = math.fsum(values) / n
-    if n < 2:
-        return {"mean": mean, "sem": 0.0, "n": n}
-    var = math.fsum((v - mean) ** 2 for v in values) / (n - 1)
-    return {"mean": mean, "sem": math.sqrt(var / n), "n": n}
+    """{"mean", "sem", "n"} of `values` (at least one); the SEM of the MJX evaluation protocol."""
+    return {"mean": math.fsum(values) / len(values), "sem": sem(values), "n": len(values)}
 
 
 def summarize(episodes: list[dict]) -> dict:

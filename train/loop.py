@@ -84,8 +84,8 @@ class Trainer:
 
 
 def episode_stats(episodes: dict, success_tau: float) -> dict:
-    """Per-episode sum of sparse rewards and final success, and their means; invalid episodes count as
-    failures with the worst reward -T (their ground truth may be garbage)."""
+    """Per-episode sum of sparse rewards, final success and validity (``summarize`` gives the means);
+    invalid episodes count as failures with the worst reward -T (their ground truth may be garbage)."""
     T = episodes["action"].shape[1]
     rewards = replay.sparse_reward(episodes["obj_xy"][:, 1:], episodes["goal_xy"][:, None], success_tau)
     final_dist = jnp.linalg.norm(episodes["obj_xy"][:, -1] - episodes["goal_xy"], axis=-1)
@@ -93,9 +93,6 @@ def episode_stats(episodes: dict, success_tau: float) -> dict:
     ep_reward = jnp.where(valid, jnp.sum(rewards, axis=1), -float(T))
     success = valid & (final_dist < success_tau)
     return {
-        "success_rate": jnp.mean(success.astype(jnp.float32)),
-        "mean_reward": jnp.mean(ep_reward),
-        "invalid_rate": jnp.mean((~valid).astype(jnp.float32)),
         "episode_success": success,
         "episode_reward": ep_reward,
         "episode_valid": valid,
@@ -290,7 +287,7 @@ class Runner:
         chunks = [self.rollout(actor_params, jax.random.fold_in(key, c), jnp.asarray(False), jnp.asarray(True))[1]
                   for c in range(t.num_eval_chunks)]
         n = t.config.loop.eval_episodes
-        flat = {k: jnp.concatenate([c[k] for c in chunks])[:n] for k in chunks[0] if k.startswith("episode_")}
+        flat = {k: jnp.concatenate([c[k] for c in chunks])[:n] for k in chunks[0]}
         return {**summarize(flat), **flat}
 
     def eval_and_select(self, ts: TrainState) -> tuple[TrainState, dict]:
