@@ -193,3 +193,63 @@ def test_eval_cli_writes_json_and_a_video(tiny_egru_run, tmp_path):
     frames = imageio.mimread(gif)
     assert len(frames) == 4  # reset + 3 steps of the tiny episode
     assert frames[0].shape[1] == 2 * frames[0].shape[0] * 320 // 240  # two views side by side
+
+
+# --- reproduce: reuse, cached evaluations, worker processes -------------------------------------------
+def test_reproduce_reuses_the_run_and_caches_each_evaluation(tiny_egru_run, evaluator, tmp_path):
+    import shutil
+
+    from train import reproduce as rep
+    from train import run as run_mod
+    from train.networks import make_networks
+
+    cfg, d, _, _ = tiny_egru_run
+    out = tmp_path / "repro"
+    run_dir = out / "runs" / "egru-s0"
+    shutil.copytree(d, run_dir)
+
+    def go():
+        lines: list[str] = []
+        rep.reproduce("smoke", 1, out, episodes=2, agents=("egru",), shapes=("cylinder",), log=lines.append,
+                      config_hook=lambda _: cfg)
+        summary = json.loads((out / "results.json").read_text())["combined"]["egru"]["cylinder"]
+        return "\n".join(lines), summary
+
+    log, first = go()
+    assert "reusing finished run" in log and "reusing evaluation" not in log
+    cache = run_dir / "eval-difficult-cylinder-2.json"
+    rec = json.loads(cache.read_text())
+    assert rec["policy_sha256"] == rep.policy_fingerprint(run_dir) and len(rec["per_episode"]["reward"]) == 2
+    assert "| cylinder | eGRU |" in (out / "report.md").read_text()
+
+    log, again = go()
+    assert "reusing evaluation" in log and again == first
+
+    cache.write_text("{ truncated")  # a damaged cache is recomputed, not trusted
+    log, _ = go()
+    assert "reusing evaluation" not in log and json.loads(cache.read_text())["summary"] == rec["summary"]
+
+    # New weights under the same name: the cached evaluation no longer belongs to them.
+    policy = run_mod.load_policy(run_dir / "best_policy")
+    other, _ = make_networks(cfg.train.agent).init(jax.random.PRNGKey(7), cfg.env.episode_length)
+    run_mod.save_policy(run_dir / "best_policy", cfg, other, policy.encoder_params, {})
+    log, _ = go()
+    assert "reusing evaluation" not in log
+    assert json.loads(cache.read_text())["policy_sha256"] != rec["policy_sha256"]
+
+
+def test_run_jobs_uses_worker_processes_keeps_order_and_names_a_failure():
+    import os
+
+    from tests.job_fns import pid_and_square
+    from train.reproduce import run_jobs
+
+    calls = [((x,), {}) for x in (3, 1, 2)]
+    out = run_jobs(pid_and_square, calls, jobs=2)
+    assert [sq for _, sq in out] == [9, 1, 4]
+    assert all(pid != os.getpid() for pid, _ in out)
+    assert run_jobs(pid_and_square, calls, jobs=1) == [(os.getpid(), 9), (os.getpid(), 1), (os.getpid(), 4)]
+    with pytest.raises(RuntimeError, match=r"job \(-1,\) failed: ValueError: negative input -1"):
+        run_jobs(pid_and_square, [((2,), {}), ((-1,), {})], jobs=2)
+    with pytest.raises(ValueError, match="jobs must be >= 1"):
+        run_jobs(pid_and_square, calls, jobs=0)

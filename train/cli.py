@@ -276,7 +276,7 @@ class Eval:
 class Reproduce:
     """Train VPM, Stacked, uGRU and eGRU, evaluate each on the difficult case per shape (cylinder,
     square cuboid, rectangular cuboid) and write a Markdown report with figures (SPEC section 7).
-    Rerunning reuses finished runs and resumes interrupted ones."""
+    Rerunning reuses finished runs and evaluations and resumes interrupted runs."""
 
     budget: Literal["smoke", "paper", "gpu"] = "smoke"
     seeds: int = 1
@@ -285,6 +285,10 @@ class Reproduce:
     episodes: int | None = None
     """evaluation episodes per shape (default: 8 for smoke, 100 otherwise)"""
     agents: tuple[Literal["vpm", "stacked", "ugru", "egru"], ...] = ("vpm", "stacked", "ugru", "egru")
+    """agents to train, started in this order (the report keeps the paper's order)"""
+    jobs: int = 1
+    """agents trained and evaluated at once, each in its own process (on a CPU one run does not keep
+    two cores busy; on one GPU keep 1)"""
 
     def run(self) -> None:
         from rich.console import Console
@@ -295,7 +299,10 @@ class Reproduce:
         out = self.out or Path(f"outputs/reproduce-{self.budget}")
         if self.episodes is not None and self.episodes < 1:
             raise ValueError(f"--episodes must be >= 1, got {self.episodes}")
-        path = reproduce(self.budget, self.seeds, out, self.episodes, tuple(self.agents), log=console.print)
+        if self.jobs < 1:
+            raise ValueError(f"--jobs must be >= 1, got {self.jobs}")
+        path = reproduce(self.budget, self.seeds, out, self.episodes, tuple(self.agents), log=console.print,
+                         jobs=self.jobs)
         console.print(f"report: {path}")
         console.print((path.parent / "report.md").read_text())
 

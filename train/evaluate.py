@@ -196,9 +196,18 @@ class Evaluator:
                 "recorded": sorted(recorded, key=lambda r: r["episode"])}
 
 
-@functools.lru_cache(maxsize=8)
 def evaluator_for(env_config: EnvConfig, agent_config, batch: int) -> Evaluator:
-    """A shared Evaluator per (environment, agent kind, batch): compiled once per process."""
+    """A shared Evaluator per (environment, agent network, batch): compiled once per process. Keyed by
+    what changes the compiled code only: evaluations draw their own objects (uniformly, whatever the
+    training sampler), and uGRU and eGRU share one network."""
+    env = dataclasses.replace(env_config, objects=dataclasses.replace(env_config.objects, mode="uniform"))
+    if agent_config.kind == "egru":
+        agent_config = dataclasses.replace(agent_config, kind="ugru")
+    return _cached_evaluator(env, agent_config, batch)
+
+
+@functools.lru_cache(maxsize=8)
+def _cached_evaluator(env_config: EnvConfig, agent_config, batch: int) -> Evaluator:
     return Evaluator(env_config, agent_config, batch)
 
 

@@ -1,37 +1,36 @@
 """`mjx-push reproduce`: train the paper's four agents, evaluate each on the difficult case per shape,
 and write the report (train/report.py).
 
-Runs live in `<out>/runs/<agent>-s<seed>`; a finished run (summary.json present) is reused and an
-interrupted one resumed from its checkpoint, so rerunning the command after a crash redoes nothing.
+Runs live in `<out>/runs/<agent>-s<seed>`; a finished run (summary.json present) is reused, an
+interrupted one resumed from its checkpoint, and each finished evaluation is cached next to the run
+(`eval-<setting>-<shape>-<episodes>.json`, tied to the policy's sha256), so rerunning the command after
+a crash redoes nothing. `jobs > 1` trains and evaluates that many agents at once in worker processes:
+on a CPU the environment of one run does not keep every core busy.
 """
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
+import functools
+import hashlib
 import json
+import multiprocessing
 import platform
 import time
 from pathlib import Path
 from typing import Callable
 
+import numpy as np
+
 from train import presets
 from train import run as run_mod
-from train.evaluate import EvalSpec, Evaluator, evaluator_for
+from train.evaluate import EvalSpec, evaluator_for
 from train.report import write_report
 
 AGENTS = ("vpm", "stacked", "ugru", "egru")
 PAPER_SHAPES = ("cylinder", "square", "rectangular")
 EVAL_EPISODES = {"smoke": 8, "paper": 100, "gpu": 100}
-
-
-def shared_evaluator(cfg: presets.RunConfig, batch: int) -> Evaluator:
-    """Evaluations draw their own objects (uniformly), and uGRU and eGRU share one network, so the
-    evaluator is keyed by what changes its compiled code only."""
-    env = dataclasses.replace(cfg.env, objects=dataclasses.replace(cfg.env.objects, mode="uniform"))
-    agent = cfg.train.agent
-    if agent.kind == "egru":
-        agent = dataclasses.replace(agent, kind="ugru")
-    return evaluator_for(env, agent, batch)
 
 
 def train_or_reuse(cfg: presets.RunConfig, run_dir: Path, log: Callable[[str], None]) -> None:
@@ -46,6 +45,88 @@ def train_or_reuse(cfg: presets.RunConfig, run_dir: Path, log: Callable[[str], N
     run_mod.run(cfg, run_dir, resume=resume)
 
 
+def policy_fingerprint(run_dir: Path) -> str:
+    """sha256 of the run's best policy weights: a cached evaluation belongs to exactly these weights."""
+    return hashlib.sha256((run_dir / "best_policy.msgpack").read_bytes()).hexdigest()
+
+
+def evaluate_run(cfg: presets.RunConfig, run_dir: Path, spec: EvalSpec, log: Callable[[str], None]) -> dict:
+    """The summary of `spec` for the run's best policy, cached in the run dir as JSON (with the policy's
+    fingerprint and the spec), so an interrupted reproduction never repeats a finished evaluation."""
+    path = run_dir / f"eval-{spec.setting}-{spec.shape}-{spec.episodes}.json"
+    fingerprint = policy_fingerprint(run_dir)
+    spec_record = dataclasses.asdict(spec)
+    if path.is_file():
+        try:
+            cached = json.loads(path.read_text())
+        except json.JSONDecodeError:
+            cached = {}
+        if cached.get("policy_sha256") == fingerprint and cached.get("spec") == json.loads(json.dumps(spec_record)):
+            log(f"reusing evaluation {path}")
+            return cached["summary"]
+    t0 = time.perf_counter()
+    res = evaluator_for(cfg.env, cfg.train.agent, spec.batch).evaluate(run_mod.load_policy(run_dir / "best_policy"), spec)
+    record = {"policy_sha256": fingerprint, "spec": spec_record, "summary": res["summary"],
+              "invalid_episodes": res["invalid_episodes"], "wall_s": time.perf_counter() - t0,
+              "per_episode": {k: np.asarray(v).tolist() for k, v in res["per_episode"].items()}}
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(record) + "\n")
+    tmp.replace(path)  # atomic: a killed evaluation leaves no half-written cache
+    return res["summary"]
+
+
+def agent_job(
+    budget: str,
+    agent: str,
+    seed: int,
+    out: Path,
+    episodes: int,
+    shapes: tuple[str, ...],
+    setting: str,
+    log: Callable[[str], None] = print,
+    config_hook: Callable[[presets.RunConfig], presets.RunConfig] | None = None,
+) -> dict[str, dict]:
+    """Train (or reuse / resume) one agent and seed, then evaluate it per shape: {shape: summary}.
+    Module-level and picklable, so `--jobs` can run it in a worker process."""
+    cfg = presets.make(agent, budget, seed)
+    cfg = config_hook(cfg) if config_hook else cfg
+    run_dir = Path(out) / "runs" / f"{agent}-s{seed}"
+    train_or_reuse(cfg, run_dir, log)
+    summaries = {}
+    for shape in shapes:
+        spec = EvalSpec(setting=setting, shape=shape, episodes=episodes, batch=min(episodes, 20))
+        s = summaries[shape] = evaluate_run(cfg, run_dir, spec, log)
+        log(f"{agent} seed {seed} {shape}: success {s['success']['mean']:.2f}, "
+            f"reward {s['reward']['mean']:.1f}, overshoot {s['overshoot']['mean']:.2f}, "
+            f"distance {s['distance']['mean']:.2f}")
+    return summaries
+
+
+def run_jobs(fn: Callable, calls: list[tuple[tuple, dict]], jobs: int) -> list:
+    """`fn(*args, **kwargs)` for each call, in order; with jobs > 1 in that many worker processes
+    (spawned: JAX is not fork-safe), each compiling its own functions. The first failure cancels the
+    jobs not yet started and is raised, naming the call."""
+    if jobs < 1:
+        raise ValueError(f"jobs must be >= 1, got {jobs}")
+    if jobs == 1:
+        return [fn(*args, **kwargs) for args, kwargs in calls]
+    ctx = multiprocessing.get_context("spawn")
+    with concurrent.futures.ProcessPoolExecutor(max_workers=min(jobs, len(calls)), mp_context=ctx) as pool:
+        futures = [pool.submit(fn, *args, **kwargs) for args, kwargs in calls]
+        for (args, _), fut in zip(calls, futures):
+            try:
+                fut.result()
+            except Exception as e:
+                for f in futures:
+                    f.cancel()
+                raise RuntimeError(f"job {args} failed: {type(e).__name__}: {e}") from e
+        return [f.result() for f in futures]
+
+
+def _log_line(prefix: str, line: str) -> None:
+    print(f"{prefix}{line}", flush=True)
+
+
 def reproduce(
     budget: str,
     seeds: int,
@@ -56,38 +137,35 @@ def reproduce(
     setting: str = "difficult",
     log: Callable[[str], None] = print,
     config_hook: Callable[[presets.RunConfig], presets.RunConfig] | None = None,
+    jobs: int = 1,
 ) -> Path:
-    """Train + evaluate every agent for `seeds` seeds; returns the report's path. `config_hook` lets
-    tests shrink the runs."""
+    """Train + evaluate every agent for `seeds` seeds (`jobs` of them at a time, in worker processes
+    when > 1); returns the report's path. `config_hook` lets tests shrink the runs (it must be
+    picklable when jobs > 1)."""
     if seeds < 1:
         raise ValueError(f"seeds must be >= 1, got {seeds}")
+    if jobs < 1:
+        raise ValueError(f"jobs must be >= 1, got {jobs}")
     for a in agents:
         if a not in AGENTS:
             raise ValueError(f"agents must be among {AGENTS}, got {a!r}")
     out = Path(out)
     episodes = episodes or EVAL_EPISODES[budget]
     t0 = time.perf_counter()
-    results: dict[str, dict[str, list]] = {a: {s: [] for s in shapes} for a in agents}
-    for seed in range(seeds):
-        for agent in agents:
-            cfg = presets.make(agent, budget, seed)
-            cfg = config_hook(cfg) if config_hook else cfg
-            run_dir = out / "runs" / f"{agent}-s{seed}"
-            train_or_reuse(cfg, run_dir, log)
-            policy = run_mod.load_policy(run_dir / "best_policy")
-            batch = min(episodes, 20)
-            # The evaluation samples its own objects, so uGRU and eGRU (which differ only in the training
-            # sampler) share one compiled evaluator.
-            ev = shared_evaluator(cfg, batch)
-            for shape in shapes:
-                spec = EvalSpec(setting=setting, shape=shape, episodes=episodes, batch=batch)
-                res = ev.evaluate(policy, spec)
-                results[agent][shape].append(res["summary"])
-                s = res["summary"]
-                log(f"{agent} seed {seed} {shape}: success {s['success']['mean']:.2f}, "
-                    f"reward {s['reward']['mean']:.1f}, overshoot {s['overshoot']['mean']:.2f}, "
-                    f"distance {s['distance']['mean']:.2f}")
-    meta = {"budget": budget, "seeds": seeds, "episodes": episodes, "setting": setting, "agents": list(agents),
+    agents = tuple(dict.fromkeys(agents))  # scheduling order as given, once each
+    items = [(agent, seed) for seed in range(seeds) for agent in agents]
+    calls = []
+    for agent, seed in items:
+        # In a worker, `log` (often a rich console) stays behind: lines go to stdout, prefixed.
+        job_log = log if jobs == 1 else functools.partial(_log_line, f"[{agent} s{seed}] ")
+        calls.append(((budget, agent, seed, out, episodes, shapes, setting),
+                      {"log": job_log, "config_hook": config_hook}))
+    summaries = run_jobs(agent_job, calls, jobs)
+    results: dict[str, dict[str, list]] = {a: {s: [] for s in shapes} for a in AGENTS if a in agents}
+    for (agent, _), per_shape in zip(items, summaries):
+        for shape in shapes:
+            results[agent][shape].append(per_shape[shape])
+    meta = {"budget": budget, "seeds": seeds, "jobs": jobs, "episodes": episodes, "setting": setting, "agents": list(results),
             "shapes": list(shapes), "wall_s": time.perf_counter() - t0,
             "machine": f"{platform.machine()}, {__import__('os').cpu_count()} CPU cores, "
                        f"jax backend {__import__('jax').default_backend()}"}
