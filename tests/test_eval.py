@@ -161,6 +161,11 @@ def test_report_end_to_end_from_a_trained_checkpoint(tiny_egru_run, evaluator, t
     assert combined["egru"]["cylinder"]["success"]["n_episodes"] == 2
 
 
+def test_read_training_names_a_directory_without_metrics(tmp_path):
+    with pytest.raises(ValueError, match="no metrics.csv"):
+        report.read_training(tmp_path)
+
+
 def test_friction_force_samplers_differ_as_in_the_paper():
     f = report.friction_force_samples(n=20_000)
     # Improved sampling puts more mass on the smallest and far more on the largest forces than uniform
@@ -220,7 +225,13 @@ def test_reproduce_reuses_the_run_and_caches_each_evaluation(tiny_egru_run, eval
     cache = run_dir / "eval-difficult-cylinder-2.json"
     rec = json.loads(cache.read_text())
     assert rec["policy_sha256"] == rep.policy_fingerprint(run_dir) and len(rec["per_episode"]["reward"]) == 2
-    assert "| cylinder | eGRU |" in (out / "report.md").read_text()
+    text = (out / "report.md").read_text()
+    assert "| cylinder | eGRU |" in text
+    # The training section comes from the run's metrics.csv: its evaluations and its cost.
+    training = report.read_training(run_dir)
+    assert training["eval_env_steps"] == [6, 12] and training["env_steps"] == 12 and training["wall_s"] > 0
+    assert f"| eGRU | 1 | 12 | {training['updates']:,} |" in text
+    assert (out / "learning_curves.png").stat().st_size > 10_000
 
     log, again = go()
     assert "reusing evaluation" in log and again == first

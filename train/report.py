@@ -7,6 +7,7 @@ standard error over test episodes; with several, the standard error across the s
 
 from __future__ import annotations
 
+import csv
 import json
 from pathlib import Path
 
@@ -112,15 +113,86 @@ def friction_figure(path: Path, samples: dict[str, np.ndarray] | None = None) ->
     plt.close(fig)
 
 
-def write_report(out_dir: Path, results: dict, meta: dict) -> Path:
-    """report.md, results.json, metrics.png, friction_force.png in `out_dir`."""
+def read_training(run_dir: Path) -> dict:
+    """A run's training record from its metrics.csv: the evaluations during training (env steps, mean
+    reward, success rate) and its cost (env steps, updates, wall time summed over iterations, so
+    time lost to an interruption is not counted but each resume's compilation is)."""
+    path = Path(run_dir) / "metrics.csv"
+    if not path.is_file():
+        raise ValueError(f"no metrics.csv in {run_dir}: not a training run directory")
+    with path.open() as f:
+        rows = list(csv.DictReader(f))
+    if not rows:
+        raise ValueError(f"{path} has no rows")
+    evals = [r for r in rows if r.get("eval/mean_reward")]
+    return {
+        "eval_env_steps": [int(r["env_steps"]) for r in evals],
+        "eval_reward": [float(r["eval/mean_reward"]) for r in evals],
+        "eval_success": [float(r["eval/success_rate"]) for r in evals],
+        "env_steps": int(rows[-1]["env_steps"]),
+        "updates": int(rows[-1]["updates"]),
+        "wall_s": float(sum(float(r["iteration_s"]) for r in rows)),
+    }
+
+
+def curve_figure(training: dict[str, list[dict]], path: Path) -> None:
+    """Mean evaluation reward and success rate during training vs env steps, one line per seed."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.5))
+    for j, (agent, runs) in enumerate(training.items()):
+        for k, t in enumerate(runs):
+            label = AGENT_NAMES.get(agent, agent) if k == 0 else None
+            axes[0].plot(t["eval_env_steps"], t["eval_reward"], "o-", color=f"C{j}", label=label, alpha=0.8)
+            axes[1].plot(t["eval_env_steps"], [100 * v for v in t["eval_success"]], "o-", color=f"C{j}",
+                         label=label, alpha=0.8)
+    for ax, title in zip(axes, ("mean evaluation reward", "evaluation success rate (%)")):
+        ax.set_title(title)
+        ax.set_xlabel("environment steps")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def training_table(training: dict[str, list[dict]]) -> str:
+    lines = ["| agent | seeds | env steps | gradient updates | training wall time (min, mean per seed) | "
+             "best evaluation reward (mean) |", "|---|---|---|---|---|---|"]
+    for agent, runs in training.items():
+        best = np.mean([max(t["eval_reward"]) if t["eval_reward"] else np.nan for t in runs])
+        lines.append(f"| {AGENT_NAMES.get(agent, agent)} | {len(runs)} | {runs[0]['env_steps']:,} | "
+                     f"{runs[0]['updates']:,} | {np.mean([t['wall_s'] for t in runs]) / 60:.1f} | {best:.2f} |")
+    return "\n".join(lines)
+
+
+def write_report(out_dir: Path, results: dict, meta: dict, runs: dict[str, list[Path]] | None = None) -> Path:
+    """report.md, results.json, metrics.png, friction_force.png in `out_dir`; with the training `runs`
+    ({agent: [run dir per seed]}) also learning_curves.png and a training-cost table."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     bar_figure(results, out_dir / "metrics.png")
     friction_figure(out_dir / "friction_force.png")
+    training = {a: [read_training(d) for d in dirs] for a, dirs in (runs or {}).items()}
+    training_text = ""
+    if training:
+        curve_figure(training, out_dir / "learning_curves.png")
+        training_text = f"""
+## Training
+
+Deterministic evaluations during training ({meta.get('budget')} budget; the best policy by mean reward
+is the one evaluated above):
+
+![learning curves](learning_curves.png)
+
+{training_table(training)}
+"""
     combined = {a: {s: combine(v) for s, v in per_shape.items()} for a, per_shape in results.items()}
-    (out_dir / "results.json").write_text(json.dumps({"meta": meta, "per_seed": results, "combined": combined},
-                                                     indent=2) + "\n")
+    (out_dir / "results.json").write_text(json.dumps({"meta": meta, "per_seed": results, "combined": combined,
+                                                      "training": training}, indent=2) + "\n")
     seeds = meta.get("seeds", 1)
     err = "standard error across seeds" if seeds > 1 else "standard error over test episodes"
     text = f"""# mjx-push reproduction: {meta.get('budget', '?')} budget
@@ -136,8 +208,9 @@ Agents trained with `mjx-push reproduce --budget {meta.get('budget')} --seeds {s
 Sliding friction force densities of the two samplers (paper Fig. 4), drawn from `mjx_push.objects`:
 
 ![friction force densities](friction_force.png)
-
-Wall time: {meta.get('wall_s', 0) / 60:.1f} min ({meta.get('machine', '')}).
+{training_text}
+Wall time of this `reproduce` invocation: {meta.get('wall_s', 0) / 60:.1f} min ({meta.get('machine', '')}); runs and
+evaluations it reused from an earlier invocation are not counted (the training table has each run's own time).
 """
     path = out_dir / "report.md"
     path.write_text(text)

@@ -169,6 +169,7 @@ def reproduce(
             "shapes": list(shapes), "wall_s": time.perf_counter() - t0,
             "machine": f"{platform.machine()}, {__import__('os').cpu_count()} CPU cores, "
                        f"jax backend {__import__('jax').default_backend()}"}
-    path = write_report(out, results, meta)
+    runs = {a: [out / "runs" / f"{a}-s{seed}" for seed in range(seeds)] for a in results}
+    path = write_report(out, results, meta, runs)
     (out / "reproduce.json").write_text(json.dumps(meta, indent=2) + "\n")
     return path
