@@ -9,10 +9,11 @@ filter "any" the first ceil(N/2) environments hold cuboids and the rest cylinder
 probability 1/2 per environment slot as in the paper; "cylinder" / "cuboid" / "square" / "rectangular"
 put all N in one group. Concatenated outputs (observations, rewards, info) list the box group first.
 
-Utilisation: a vmapped `while_loop` runs until the slowest environment of its group has spent its a_s
-substeps, the others standing still (masked). `utilisation(a_s)` gives the useful fraction; the
-three-phase step of `PushEnv` (`begin_step` / `advance` / `finish_step`) lets a scheduler advance
-fixed chunks instead and hand each environment its next action as soon as it is done.
+Utilisation: in `step`, a vmapped `while_loop` runs until the slowest environment of its group has
+spent its a_s substeps, the others standing still (masked). `utilisation(a_s)` gives the useful
+fraction. `begin` / `advance` / `finish` / `ready` expose the three phases of `PushEnv`'s step per
+environment, so a scheduler (train/loop.py) can advance fixed chunks of substeps and hand each
+environment its next action as soon as its step is done.
 """
 
 from __future__ import annotations
@@ -28,6 +29,10 @@ from mjx_push.env import EnvConfig, PushEnv
 @struct.dataclass
 class BatchState:
     groups: tuple[State, ...]  # one brax State per shape group, each with a leading batch axis
+
+    @property
+    def num_envs(self) -> int:
+        return sum(g.reward.shape[0] for g in self.groups)
 
     def cat(self, get) -> jax.Array:
         """Concatenate `get(state)` over the groups along the batch axis."""
@@ -88,6 +93,36 @@ class PushBatch:
             raise ValueError(f"actions must have shape ({self.num_envs}, 3), got {actions.shape}")
         parts = self._split(actions)
         return BatchState(tuple(jax.vmap(env.step)(s, a) for env, s, a in zip(self.envs, state.groups, parts)))
+
+    # --- the three phases, per environment (a scheduler's view of the batch) -----------------------
+    def begin(self, state: BatchState, actions: jax.Array, mask: jax.Array) -> BatchState:
+        """Start a new env step with `actions` in the environments where `mask` [N] is True."""
+        actions = jnp.asarray(actions)
+        if actions.shape != (self.num_envs, 3):
+            raise ValueError(f"actions must have shape ({self.num_envs}, 3), got {actions.shape}")
+        return self._masked(lambda env, s, a: jax.vmap(env.begin_step)(s, a), state, mask, actions)
+
+    def advance(self, state: BatchState, max_substeps: int) -> BatchState:
+        """Run up to `max_substeps` substeps of every environment's current step (spent ones stand still)."""
+        return BatchState(tuple(jax.vmap(lambda s: env.advance(s, max_substeps))(g)
+                                for env, g in zip(self.envs, state.groups)))
+
+    def ready(self, state: BatchState) -> jax.Array:
+        """[N] bool: the environment has spent its current step's substeps."""
+        return state.info("substeps_left") == 0
+
+    def finish(self, state: BatchState, mask: jax.Array) -> BatchState:
+        """Finish the current step (observation, reward, validity) where `mask` is True."""
+        return self._masked(lambda env, s, _: jax.vmap(env.finish_step)(s), state, mask,
+                            jnp.zeros((self.num_envs,)))
+
+    def _masked(self, fn, state: BatchState, mask: jax.Array, per_env: jax.Array) -> BatchState:
+        groups = []
+        for env, g, m, x in zip(self.envs, state.groups, self._split(mask), self._split(per_env)):
+            new = fn(env, g, x)
+            groups.append(jax.tree.map(lambda n, o: jnp.where(m.reshape(m.shape + (1,) * (n.ndim - 1)), n, o),
+                                       new, g))
+        return BatchState(tuple(groups))
 
     def _split(self, x):
         out, i = [], 0

@@ -144,3 +144,25 @@ def test_success_radius_must_match_the_environment():
     cfg = toy_config("vpm", 400)
     with pytest.raises(ValueError, match="replay.success_tau must equal"):
         make_train(cfg, make_toy(success_tau=0.01))
+
+
+@pytest.mark.parametrize("kind", ["vpm", "ugru"])
+def test_scheduled_rollout_gives_the_lockstep_episodes(kind):
+    """Steps of 1..8 substeps advanced 3 at a time: environments finish their steps at different
+    ticks, yet every episode (observations, actions, invalid flags) is the lockstep one."""
+    cfg = toy_config(kind, 160, num_envs=6, episode_len=7)
+    lock = make_train(cfg, make_toy(success_tau=TAU, invalid_prob=0.05))
+    sched = make_train(cfg, make_toy(success_tau=TAU, invalid_prob=0.05, substep_chunk=3, max_substeps=8))
+    actor = lock.init(jax.random.PRNGKey(1)).sac.actor_params
+    for random_actions, deterministic in ((True, False), (False, False), (False, True)):
+        args = (actor, jax.random.PRNGKey(5), jnp.asarray(random_actions), jnp.asarray(deterministic))
+        a, _ = jax.jit(lock.rollout)(*args)
+        b, _ = jax.jit(sched.rollout)(*args)
+        jax.tree.map(lambda x, y: np.testing.assert_allclose(x, y, rtol=0, atol=1e-6), a, b)
+        if random_actions:  # the step lengths really differed (1 to 8 substeps)
+            assert np.ptp(np.floor((np.asarray(a["action"][..., 2]) + 1) / 2 * 7)) >= 5
+
+
+def test_substep_scheduler_rejects_a_bad_chunk():
+    with pytest.raises(ValueError, match="substep chunk must be a positive integer"):
+        make_toy(substep_chunk=-2)

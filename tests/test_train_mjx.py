@@ -49,3 +49,24 @@ def test_adapter_latents_are_the_encoder_of_the_masks(encoder_file):
     np.testing.assert_array_equal(info["goal_xy"], goal_xy)
     assert obs["ee_xy"].shape == (2, 2) and jnp.all(jnp.isfinite(obs["ee_xy"]))
     assert not np.allclose(obs["z_obj"], info["z_goal"])  # start and goal differ
+
+
+def test_scheduled_stepping_gives_the_lockstep_episodes_on_the_pushing_scene(encoder_file):
+    """Each environment advanced 7 substeps at a time and given its next action as soon as its own
+    step (10-30 substeps) is spent: the same episodes as stepping all environments in lockstep."""
+    from train.loop import make_train
+
+    cfg = tiny_run_config("vpm", encoder_file)
+    params = enc.load(encoder_file)
+    lock = make_train(cfg.train, make_push_adapter(cfg.env, params, substep_chunk=0))
+    sched = make_train(cfg.train, make_push_adapter(cfg.env, params, substep_chunk=7))
+    assert lock.config.loop.num_envs == 2 and sched.config.loop.num_envs == 2
+    actor = lock.init(jax.random.PRNGKey(0)).sac.actor_params
+    args = (actor, jax.random.PRNGKey(11), jnp.asarray(True), jnp.asarray(False))
+    a, _ = jax.jit(lock.rollout)(*args)
+    b, _ = jax.jit(sched.rollout)(*args)
+    steps = np.floor((np.asarray(a["action"][..., 2]) + 1) / 2 * 20)
+    assert np.ptp(steps) >= 5  # the environments' step lengths differed, so they ran out of phase
+    for k in ("ee_xy", "obj_xy", "z_obj", "action", "valid"):
+        np.testing.assert_allclose(np.asarray(a[k], np.float64), np.asarray(b[k], np.float64), rtol=0, atol=2e-5,
+                                   err_msg=k)

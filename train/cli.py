@@ -130,6 +130,9 @@ class Train:
     eval_episodes: int | None = None
     checkpoint_every: int = 10
     """also checkpoint every this many episode batches (always at evaluations and at the end)"""
+    substep_chunk: int | None = None
+    """substeps per tick of the rollout's scheduler (default 50; 0: all environments step in lockstep,
+    each step waiting for the slowest); changes speed only, never the episodes"""
     progress: bool = True
 
     def config(self):
@@ -169,7 +172,7 @@ class Train:
         console.print("  the first batch includes JIT compilation (minutes on CPU)")
         with TrainProgress(console, loop, enabled=self.progress) as bar:
             summary, _ = run_mod.run(cfg, run_dir, resume=self.resume, checkpoint_every=self.checkpoint_every,
-                                     on_iteration=bar.update)
+                                     on_iteration=bar.update, substep_chunk=self.substep_chunk)
         console.print(f"best evaluation: mean reward {summary['best_eval_mean_reward']:.2f}, success "
                       f"{summary['best_eval_success_rate']:.0%} at {summary['best_env_steps']:,} env steps")
         console.print(f"policy: {run_dir / 'best_policy.msgpack'} (+ .json); logs: {run_dir / 'metrics.csv'}, "

@@ -4,8 +4,10 @@
 
 * ``init(key) -> TrainState``
 * ``rollout(actor_params, key, random_actions, deterministic) -> (episodes, stats)``: one whole
-  episode in each of ``num_envs`` environments (``lax.scan``; the policy acts step by step with its
-  carry; uniform random actions during warm-up). Evaluation reuses it chunk by chunk.
+  episode in each of ``num_envs`` environments (the policy acts step by step with its carry; uniform
+  random actions during warm-up), in lockstep (``lax.scan`` over ``adapter.step``) or, when the
+  adapter has a ``SubstepScheduler``, each environment at its own pace. Evaluation reuses it chunk by
+  chunk.
 * ``learn(state, episodes, key)``: add the episodes to replay, then ``lax.scan`` over
   ``num_envs * episode_len * utd`` SAC updates (skipped until warm-up is over and replay holds at
   least ``batch_size`` valid transitions); ``split_keys`` derives the two keys from the state's.
@@ -24,7 +26,8 @@ the tests and the MJX pushing environment:
   ``z_obj [N, 6]``, ``obj_xy [N, 2]``}, ``episode_info`` = {``z_goal [N, 6]``, ``goal_xy [N, 2]``};
 * ``step(env_state, action [N, 3] in [-1, 1]) -> (env_state, step_obs, invalid [N] bool)``. An
   episode with any invalid step is stored with ``valid=False`` and never sampled;
-* optionally ``success_tau``, the task's success radius, checked against ``replay.success_tau``.
+* optionally ``success_tau``, the task's success radius, checked against ``replay.success_tau``;
+* optionally ``scheduler`` (``SubstepScheduler``), the step in phases for asynchronous rollouts.
 """
 
 from __future__ import annotations
@@ -47,12 +50,38 @@ Params = Any
 
 
 @dataclasses.dataclass(frozen=True)
+class SubstepScheduler:
+    """The step of an environment whose steps last a variable number of substeps, in phases, so the
+    rollout can advance every environment ``chunk`` substeps at a time and give each its next action
+    as soon as its own step is done (instead of every step waiting for the slowest environment):
+
+    * ``begin(env_state, action [N, 3], mask [N]) -> env_state``: start a step where ``mask``;
+    * ``advance(env_state, chunk) -> env_state``: up to ``chunk`` substeps of every current step;
+    * ``ready(env_state) -> [N] bool``: the current step's substeps are spent;
+    * ``finish(env_state, mask) -> (env_state, step_obs, invalid)``: end the step where ``mask``.
+    """
+
+    begin: Callable[[Any, jax.Array, jax.Array], Any]
+    advance: Callable[[Any, int], Any]
+    ready: Callable[[Any], jax.Array]
+    finish: Callable[[Any, jax.Array], tuple[Any, dict, jax.Array]]
+    chunk: int
+
+    def __post_init__(self):
+        if not (isinstance(self.chunk, int) and self.chunk >= 1):
+            raise ValueError(f"substep chunk must be a positive integer, got {self.chunk!r}")
+
+
+@dataclasses.dataclass(frozen=True)
 class EnvAdapter:
     reset: Callable[[jax.Array, int], tuple[Any, dict, dict]]
     step: Callable[[Any, jax.Array], tuple[Any, dict, jax.Array]]
     # The task's success radius, if the environment defines one: make_train checks that the learner's
     # reward (ReplayConfig.success_tau) uses the same, so relabelled rewards match the task's.
     success_tau: float | None = None
+    # When set, rollouts step the environments asynchronously through it; the episodes are the same
+    # as with ``step`` (every random draw is keyed by environment and step), only faster.
+    scheduler: SubstepScheduler | None = None
 
 
 @flax.struct.dataclass
@@ -141,32 +170,89 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
             best_env_steps=jnp.array(-1, jnp.int32),
         )
 
-    def collect(actor_params, key, num_envs: int, random_actions, deterministic):
-        """One whole episode in ``num_envs`` envs -> (episode records [num_envs, ...], stats)."""
-        k_reset, k_roll = jax.random.split(key)
-        env_state, obs0, info = adapter.reset(k_reset, num_envs)
+    def act(actor_params, carry, obs, z_goal, keys, random_actions, deterministic):
+        """Actions of every environment from its own key ([N, 2]); uniform ones during warm-up. The
+        carry advances during warm-up too, so it stays in step with the observations."""
+        k_act, k_rand = jnp.swapaxes(jax.vmap(jax.random.split)(keys), 0, 1)
+        policy_action, carry = nets.act(
+            actor_params, carry, {"ee_xy": obs["ee_xy"], "z_obj": obs["z_obj"], "z_goal": z_goal}, k_act,
+            deterministic,
+        )
+        uniform = jax.vmap(lambda k: jax.random.uniform(k, policy_action.shape[1:], minval=-1.0, maxval=1.0))(k_rand)
+        return jnp.where(random_actions, uniform, policy_action), carry
 
+    def step_keys(step_key: jax.Array, num_envs: int) -> jax.Array:
+        """[N, 2]: environment i's key for the step whose key is ``step_key``."""
+        return jax.vmap(lambda i: jax.random.fold_in(step_key, i))(jnp.arange(num_envs))
+
+    def lockstep(actor_params, env_state, obs0, info, ks, num_envs, random_actions, deterministic):
         def body(c, k):
             env_state, obs, carry, bad = c
-            k_act, k_rand = jax.random.split(k)
-            policy_action, carry = nets.act(
-                actor_params,
-                carry,
-                {"ee_xy": obs["ee_xy"], "z_obj": obs["z_obj"], "z_goal": info["z_goal"]},
-                k_act,
-                deterministic,
-            )
-            # The carry advances during warm-up too, so it stays in step with the observations.
-            uniform = jax.random.uniform(k_rand, policy_action.shape, minval=-1.0, maxval=1.0)
-            action = jnp.where(random_actions, uniform, policy_action)
+            action, carry = act(actor_params, carry, obs, info["z_goal"], step_keys(k, num_envs), random_actions,
+                                deterministic)
             env_state, obs, invalid = adapter.step(env_state, action)
             return (env_state, obs, carry, bad | invalid), (obs, action)
 
         init_c = (env_state, obs0, nets.init_carry(num_envs), jnp.zeros((num_envs,), bool))
-        (_, _, _, bad), (obs_seq, actions) = jax.lax.scan(body, init_c, jax.random.split(k_roll, T))
+        (_, _, _, bad), (obs_seq, actions) = jax.lax.scan(body, init_c, ks)
+        return jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), obs_seq), jnp.swapaxes(actions, 0, 1), bad
+
+    def scheduled(actor_params, env_state, obs0, info, ks, num_envs, random_actions, deterministic):
+        """Every environment runs its own T steps: each tick advances all by ``chunk`` substeps, then
+        those whose step is spent finish it, record it and begin their next one."""
+        sch = adapter.scheduler
+        idx = jnp.arange(num_envs)
+        keys_at = lambda t: jax.vmap(jax.random.fold_in)(ks[jnp.minimum(t, T - 1)], idx)  # noqa: E731
+        t0 = jnp.zeros((num_envs,), jnp.int32)
+        action, carry = act(actor_params, nets.init_carry(num_envs), obs0, info["z_goal"], keys_at(t0),
+                            random_actions, deterministic)
+        env_state = sch.begin(env_state, action, jnp.ones((num_envs,), bool))
+        obs_buf = jax.tree.map(lambda x: jnp.zeros((num_envs, T) + x.shape[1:], x.dtype), obs0)
+        act_buf = jnp.zeros((num_envs, T) + action.shape[1:], action.dtype).at[:, 0].set(action)
+
+        def put(buf, slot, rows, mask):  # buf[i, slot[i]] = rows[i] where mask[i]
+            mask = mask.reshape(mask.shape + (1,) * (rows.ndim - 1))
+            return buf.at[idx, slot].set(jnp.where(mask, rows, buf[idx, slot]))
+
+        def body(c):
+            env_state = sch.advance(c[0], sch.chunk)
+            done = sch.ready(env_state) & (c[1] < T)
+            # Finishing, encoding and acting cost a sizeable fraction of a chunk of physics: skip them
+            # on the ticks where no environment's step ended.
+            return jax.lax.cond(jnp.any(done), turn, lambda c, d: c, (env_state,) + c[1:], done)
+
+        def turn(c, done):
+            env_state, t, carry, obs_buf, act_buf, bad = c
+            env_state, obs, invalid = sch.finish(env_state, done)
+            slot = jnp.minimum(t, T - 1)
+            obs_buf = jax.tree.map(lambda b, o: put(b, slot, o, done), obs_buf, obs)
+            bad = bad | (done & invalid)
+            t = t + done.astype(jnp.int32)
+            more = done & (t < T)
+            action, new_carry = act(actor_params, carry, obs, info["z_goal"], keys_at(t), random_actions,
+                                    deterministic)
+            carry = jax.tree.map(lambda n, o: jnp.where(more.reshape(more.shape + (1,) * (n.ndim - 1)), n, o),
+                                 new_carry, carry)
+            env_state = sch.begin(env_state, action, more)
+            act_buf = put(act_buf, jnp.minimum(t, T - 1), action, more)
+            return env_state, t, carry, obs_buf, act_buf, bad
+
+        init_c = (env_state, t0, carry, obs_buf, act_buf, jnp.zeros((num_envs,), bool))
+        _, _, _, obs_buf, act_buf, bad = jax.lax.while_loop(lambda c: jnp.any(c[1] < T), body, init_c)
+        return obs_buf, act_buf, bad
+
+    def collect(actor_params, key, num_envs: int, random_actions, deterministic):
+        """One whole episode in ``num_envs`` envs -> (episode records [num_envs, ...], stats). Step t
+        of environment i draws its randomness from fold_in(key_t, i), so an episode does not depend on
+        how the environments were scheduled."""
+        k_reset, k_roll = jax.random.split(key)
+        env_state, obs0, info = adapter.reset(k_reset, num_envs)
+        run = scheduled if adapter.scheduler is not None else lockstep
+        obs_seq, actions, bad = run(actor_params, env_state, obs0, info, jax.random.split(k_roll, T), num_envs,
+                                    random_actions, deterministic)
 
         def with_reset(name):  # [N, T+1, .]: the reset observation first, then the T step observations
-            return jnp.concatenate([obs0[name][:, None], jnp.swapaxes(obs_seq[name], 0, 1)], axis=1)
+            return jnp.concatenate([obs0[name][:, None], obs_seq[name]], axis=1)
 
         episodes = {
             "z_obj": with_reset("z_obj"),
@@ -174,7 +260,7 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
             "obj_xy": with_reset("obj_xy"),
             "z_goal": info["z_goal"],
             "goal_xy": info["goal_xy"],
-            "action": jnp.swapaxes(actions, 0, 1),
+            "action": actions,
             "valid": ~bad,
         }
         return episodes, episode_stats(episodes, config.replay.success_tau)

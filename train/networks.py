@@ -246,11 +246,15 @@ class Networks:
 
     def act(self, actor_params, carry, obs_step, key, deterministic) -> tuple[jax.Array, jax.Array]:
         """One online step: ``obs_step`` holds ``ee_xy [N, 2]``, ``z_obj [N, 6]``, ``z_goal [N, 6]``.
-        ``deterministic`` may be a Python or a traced bool."""
+        ``key`` is one key for the batch or one per environment ([N, 2]: each environment's noise then
+        depends on its own key only, whatever the batch). ``deterministic`` may be a traced bool."""
         carry, (mean, log_std) = self.actor.apply(
             actor_params, carry, obs_step["ee_xy"], obs_step["z_obj"], obs_step["z_goal"], method=Actor.step
         )
-        noise = jax.random.normal(key, mean.shape, mean.dtype)
+        if key.ndim == 2:
+            noise = jax.vmap(lambda k: jax.random.normal(k, mean.shape[1:], mean.dtype))(key)
+        else:
+            noise = jax.random.normal(key, mean.shape, mean.dtype)
         noise = jnp.where(deterministic, jnp.zeros_like(noise), noise)
         action, _ = squash(mean, log_std, noise)
         return action, carry

@@ -240,17 +240,23 @@ def run(
     checkpoint_every: int = 10,
     stop_after: int | None = None,
     on_iteration: Callable[[dict], None] | None = None,
+    substep_chunk: int | None = None,
 ) -> tuple[dict, TrainState]:
     """Train `cfg` in `run_dir`. Checkpoints after every `checkpoint_every` batches, at every
     evaluation and at the end. `stop_after`: stop (as if killed) after that many batches of this call.
-    `adapter` replaces the MJX task (tests use the toy task). Returns (summary, final state)."""
+    `adapter` replaces the MJX task (tests use the toy task). `substep_chunk`: substeps per tick of the
+    MJX task's scheduler (0: lockstep; None: the default); it changes speed, not episodes, so it is not
+    part of the run's configuration. Returns (summary, final state)."""
     run_dir = Path(run_dir)
     prepare_dir(run_dir, cfg, resume)
     encoder_params = enc.load(cfg.encoder and Path(cfg.encoder))
     if adapter is None:
-        from train.push_task import make_push_adapter
+        from train.push_task import DEFAULT_SUBSTEP_CHUNK, make_push_adapter
 
-        adapter = make_push_adapter(cfg.env, encoder_params)
+        chunk = DEFAULT_SUBSTEP_CHUNK if substep_chunk is None else substep_chunk
+        if not (isinstance(chunk, int) and chunk >= 0):
+            raise ValueError(f"substep_chunk must be an integer >= 0, got {chunk!r}")
+        adapter = make_push_adapter(cfg.env, encoder_params, chunk)
     trainer = make_train(cfg.train, adapter)
     runner = Runner(trainer)
     loop = cfg.train.loop

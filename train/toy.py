@@ -13,13 +13,15 @@ import flax.struct
 import jax
 import jax.numpy as jnp
 
-from train.loop import EnvAdapter
+from train.loop import EnvAdapter, SubstepScheduler
 
 
 @flax.struct.dataclass
 class ToyState:
     obj_xy: jax.Array  # [N, 2]
-    key: jax.Array  # drives the optional random invalid flags
+    key: jax.Array  # [N, 2], per environment: drives the optional random invalid flags
+    pending: jax.Array  # [N, 2] the move of the step in progress (scheduled stepping only)
+    left: jax.Array  # [N] substeps left in it
 
 
 def latent_map(seed: int, bound: float) -> jax.Array:
@@ -33,11 +35,18 @@ def make_toy(
     bound: float = 0.15,
     seed: int = 0,
     invalid_prob: float = 0.0,
+    substep_chunk: int = 0,
+    max_substeps: int = 8,
 ) -> EnvAdapter:
     """The toy adapter. ``success_tau`` is the task's success radius; the learner computes rewards
     from ``obj_xy`` / ``goal_xy`` with ``ReplayConfig.success_tau``, and ``make_train`` checks that the
     two agree. ``invalid_prob`` flags random steps invalid, to exercise the handling of broken
-    simulations. A larger tolerance than the real task's 1 cm keeps learning fast in tests."""
+    simulations. A larger tolerance than the real task's 1 cm keeps learning fast in tests.
+
+    ``substep_chunk`` > 0 gives the adapter a ``SubstepScheduler``: a step then lasts 1..``max_substeps``
+    substeps chosen by a_s, like the pushing task's, and the move lands when they are spent, so the
+    learner's scheduled rollout can be checked against the lockstep one on a task that compiles in
+    seconds."""
     M = latent_map(seed, bound)
 
     def observe(obj_xy):
@@ -47,12 +56,32 @@ def make_toy(
         k_obj, k_goal, k_state = jax.random.split(key, 3)
         obj = jax.random.uniform(k_obj, (num_envs, 2), minval=-bound, maxval=bound)
         goal = jax.random.uniform(k_goal, (num_envs, 2), minval=-bound, maxval=bound)
-        return ToyState(obj, k_state), observe(obj), {"z_goal": goal @ M, "goal_xy": goal}
+        state = ToyState(obj, jax.random.split(k_state, num_envs), jnp.zeros((num_envs, 2)),
+                         jnp.zeros((num_envs,), jnp.int32))
+        return state, observe(obj), {"z_goal": goal @ M, "goal_xy": goal}
 
     def step(state, action):
         obj = jnp.clip(state.obj_xy + step_size * jnp.clip(action[:, :2], -1.0, 1.0), -bound, bound)
-        key, k_bad = jax.random.split(state.key)
-        invalid = jax.random.uniform(k_bad, (obj.shape[0],)) < invalid_prob
-        return ToyState(obj, key), observe(obj), invalid
+        key, k_bad = jnp.swapaxes(jax.vmap(jax.random.split)(state.key), 0, 1)
+        invalid = jax.vmap(jax.random.uniform)(k_bad) < invalid_prob
+        return state.replace(obj_xy=obj, key=key), observe(obj), invalid
 
-    return EnvAdapter(reset=reset, step=step, success_tau=success_tau)
+    def select(mask, new, old):
+        return jax.tree.map(lambda n, o: jnp.where(mask.reshape(mask.shape + (1,) * (n.ndim - 1)), n, o), new, old)
+
+    def begin(state, action, mask):
+        n = 1 + jnp.floor((jnp.clip(action[:, 2], -1.0, 1.0) + 1.0) / 2.0 * (max_substeps - 1)).astype(jnp.int32)
+        return select(mask, state.replace(pending=action[:, :2], left=n), state)
+
+    def advance(state, chunk):
+        return state.replace(left=jnp.maximum(state.left - chunk, 0))
+
+    def finish(state, mask):
+        new, _, invalid = step(state, jnp.concatenate([state.pending, jnp.zeros_like(state.pending[:, :1])], 1))
+        state = select(mask, new, state)
+        return state, observe(state.obj_xy), invalid & mask
+
+    scheduler = None
+    if substep_chunk:
+        scheduler = SubstepScheduler(begin, advance, lambda s: s.left == 0, finish, substep_chunk)
+    return EnvAdapter(reset=reset, step=step, success_tau=success_tau, scheduler=scheduler)
