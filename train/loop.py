@@ -49,6 +49,11 @@ from train.sac import SACState, init_state, make_update
 Params = Any
 
 
+def select_envs(mask: jax.Array, new, old):
+    """Per environment (leading axis), ``new`` where ``mask`` [N] is True and ``old`` elsewhere."""
+    return jax.tree.map(lambda n, o: jnp.where(mask.reshape(mask.shape + (1,) * (n.ndim - 1)), n, o), new, old)
+
+
 @dataclasses.dataclass(frozen=True)
 class SubstepScheduler:
     """The step of an environment whose steps last a variable number of substeps, in phases, so the
@@ -211,8 +216,7 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
         act_buf = jnp.zeros((num_envs, T) + action.shape[1:], action.dtype).at[:, 0].set(action)
 
         def put(buf, slot, rows, mask):  # buf[i, slot[i]] = rows[i] where mask[i]
-            mask = mask.reshape(mask.shape + (1,) * (rows.ndim - 1))
-            return buf.at[idx, slot].set(jnp.where(mask, rows, buf[idx, slot]))
+            return buf.at[idx, slot].set(select_envs(mask, rows, buf[idx, slot]))
 
         def body(c):
             env_state = sch.advance(c[0], sch.chunk)
@@ -231,8 +235,7 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
             more = done & (t < T)
             action, new_carry = act(actor_params, carry, obs, info["z_goal"], keys_at(t), random_actions,
                                     deterministic)
-            carry = jax.tree.map(lambda n, o: jnp.where(more.reshape(more.shape + (1,) * (n.ndim - 1)), n, o),
-                                 new_carry, carry)
+            carry = select_envs(more, new_carry, carry)
             env_state = sch.begin(env_state, action, more)
             act_buf = put(act_buf, jnp.minimum(t, T - 1), action, more)
             return env_state, t, carry, obs_buf, act_buf, bad

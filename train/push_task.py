@@ -54,7 +54,7 @@ def make_push_adapter(env_config: EnvConfig, encoder_params, substep_chunk: int 
         return batch(s.num_envs).advance(s, max_substeps)
 
     def ready(s: BatchState) -> jax.Array:
-        return s.info("substeps_left") == 0
+        return batch(s.num_envs).ready(s)
 
     def finish(s: BatchState, mask: jax.Array):
         s = batch(mask.shape[0]).finish(s, mask)

@@ -13,7 +13,7 @@ import flax.struct
 import jax
 import jax.numpy as jnp
 
-from train.loop import EnvAdapter, SubstepScheduler
+from train.loop import EnvAdapter, SubstepScheduler, select_envs
 
 
 @flax.struct.dataclass
@@ -66,19 +66,16 @@ def make_toy(
         invalid = jax.vmap(jax.random.uniform)(k_bad) < invalid_prob
         return state.replace(obj_xy=obj, key=key), observe(obj), invalid
 
-    def select(mask, new, old):
-        return jax.tree.map(lambda n, o: jnp.where(mask.reshape(mask.shape + (1,) * (n.ndim - 1)), n, o), new, old)
-
     def begin(state, action, mask):
         n = 1 + jnp.floor((jnp.clip(action[:, 2], -1.0, 1.0) + 1.0) / 2.0 * (max_substeps - 1)).astype(jnp.int32)
-        return select(mask, state.replace(pending=action[:, :2], left=n), state)
+        return select_envs(mask, state.replace(pending=action[:, :2], left=n), state)
 
     def advance(state, chunk):
         return state.replace(left=jnp.maximum(state.left - chunk, 0))
 
     def finish(state, mask):
         new, _, invalid = step(state, jnp.concatenate([state.pending, jnp.zeros_like(state.pending[:, :1])], 1))
-        state = select(mask, new, state)
+        state = select_envs(mask, new, state)
         return state, observe(state.obj_xy), invalid & mask
 
     scheduler = None
