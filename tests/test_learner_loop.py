@@ -166,3 +166,26 @@ def test_scheduled_rollout_gives_the_lockstep_episodes(kind):
 def test_substep_scheduler_rejects_a_bad_chunk():
     with pytest.raises(ValueError, match="substep chunk must be a positive integer"):
         make_toy(substep_chunk=-2)
+
+
+def test_selection_keeps_the_best_reward_and_gives_ties_to_the_newer_params():
+    trainer = make_train(toy_config("vpm", 160), make_toy(success_tau=TAU))
+    select = jax.jit(trainer.select)
+    ts = trainer.init(jax.random.PRNGKey(0))
+
+    def evaluated(ts, steps, reward, success):
+        ts = ts.replace(env_steps=jnp.asarray(steps, jnp.int32))
+        ts, m = select(ts, {"mean_reward": jnp.float32(reward), "success_rate": jnp.float32(success),
+                            "invalid_rate": jnp.float32(0.0)})
+        return ts, bool(m["eval/improved"])
+
+    ts, improved = evaluated(ts, 100, -10.0, 0.0)
+    assert improved and int(ts.best_env_steps) == 100
+    ts, improved = evaluated(ts, 200, -10.0, 0.0)  # tie: the newer params win
+    assert improved and int(ts.best_env_steps) == 200
+    ts, improved = evaluated(ts, 300, -12.0, 0.5)  # lower reward loses, whatever its success
+    assert not improved and int(ts.best_env_steps) == 200
+    ts, improved = evaluated(ts, 400, -9.0, 0.2)
+    assert improved and float(ts.best_eval_success) == pytest.approx(0.2)
+    ts, improved = evaluated(ts, 500, -9.0, 0.1)  # same reward, lower success: kept the older
+    assert not improved and int(ts.best_env_steps) == 400

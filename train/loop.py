@@ -324,8 +324,11 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
         return summarize(flat, loop.eval_episodes)
 
     def select(ts: TrainState, stats: dict) -> tuple[TrainState, dict]:
-        """Keep the actor params with the best mean evaluation reward so far."""
-        better = stats["mean_reward"] > ts.best_eval_reward
+        """Keep the actor params with the best mean evaluation reward so far. A tie goes to the newer
+        params when their success rate is not lower: with sparse rewards, equal scores (e.g. -T while
+        nothing reaches the goal yet) say nothing, and the longer-trained policy is the better guess."""
+        r, s = stats["mean_reward"], stats["success_rate"]
+        better = (r > ts.best_eval_reward) | ((r == ts.best_eval_reward) & (s >= ts.best_eval_success))
         pick = lambda new, old: jax.tree.map(lambda n, o: jnp.where(better, n, o), new, old)  # noqa: E731
         ts = ts.replace(
             best_actor_params=pick(ts.sac.actor_params, ts.best_actor_params),
