@@ -307,7 +307,7 @@ class Reproduce:
         path = reproduce(self.budget, self.seeds, out, self.episodes, tuple(self.agents), log=console.print,
                          jobs=self.jobs)
         console.print(f"report: {path}")
-        console.print((path.parent / "report.md").read_text())
+        console.print((path.parent / "report.md").read_text(), markup=False, soft_wrap=True)  # verbatim Markdown
 
 
 def main(argv: list[str] | None = None) -> int:
