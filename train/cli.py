@@ -290,8 +290,8 @@ class Reproduce:
     agents: tuple[Literal["vpm", "stacked", "ugru", "egru"], ...] = ("vpm", "stacked", "ugru", "egru")
     """agents to train, started in this order (the report keeps the paper's order)"""
     jobs: int = 1
-    """agents trained and evaluated at once, each in its own process (on a CPU one run does not keep
-    two cores busy; on one GPU keep 1)"""
+    """agents trained and evaluated at once, each in its own process (2 CPU cores, warm-up: two runs
+    side by side made about 29 env steps/s in total, one alone 16-20; on one GPU keep 1)"""
 
     def run(self) -> None:
         from rich.console import Console
