@@ -70,3 +70,10 @@ def test_scheduled_stepping_gives_the_lockstep_episodes_on_the_pushing_scene(enc
     for k in ("ee_xy", "obj_xy", "z_obj", "action", "valid"):
         np.testing.assert_allclose(np.asarray(a[k], np.float64), np.asarray(b[k], np.float64), rtol=0, atol=2e-5,
                                    err_msg=k)
+
+
+def test_push_adapter_rejects_a_negative_substep_chunk():
+    from mjx_push.env import EnvConfig
+
+    with pytest.raises(ValueError, match=r"substep_chunk must be an integer >= 0 \(0: lockstep\), got -1"):
+        make_push_adapter(EnvConfig(), None, -1)

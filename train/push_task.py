@@ -18,14 +18,16 @@ from train.loop import EnvAdapter, SubstepScheduler
 
 
 # Substeps per scheduler tick: each environment takes its next action as soon as its own step's a_s
-# substeps are spent, instead of every step waiting for the slowest environment (see benchmarks/
-# env_throughput.py --rollout for the measured effect of this value).
+# substeps are spent, instead of every step waiting for the slowest environment
+# (benchmarks/rollout_throughput.py measures the effect of this value).
 DEFAULT_SUBSTEP_CHUNK = 50
 
 
 def make_push_adapter(env_config: EnvConfig, encoder_params, substep_chunk: int = DEFAULT_SUBSTEP_CHUNK) -> EnvAdapter:
     """Adapter over `PushBatch(env_config, n)`; one batch object is built per environment count `n`.
     `substep_chunk` 0 steps all environments in lockstep; both give the same episodes."""
+    if not (isinstance(substep_chunk, int) and substep_chunk >= 0):
+        raise ValueError(f"substep_chunk must be an integer >= 0 (0: lockstep), got {substep_chunk!r}")
     batches: dict[int, PushBatch] = {}
 
     def batch(n: int) -> PushBatch:

@@ -254,8 +254,6 @@ def run(
         from train.push_task import DEFAULT_SUBSTEP_CHUNK, make_push_adapter
 
         chunk = DEFAULT_SUBSTEP_CHUNK if substep_chunk is None else substep_chunk
-        if not (isinstance(chunk, int) and chunk >= 0):
-            raise ValueError(f"substep_chunk must be an integer >= 0, got {chunk!r}")
         adapter = make_push_adapter(cfg.env, encoder_params, chunk)
     trainer = make_train(cfg.train, adapter)
     runner = Runner(trainer)
