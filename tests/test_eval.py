@@ -224,13 +224,15 @@ def test_reproduce_reuses_the_run_and_caches_each_evaluation(tiny_egru_run, eval
     assert "reusing finished run" in log and "reusing evaluation" not in log
     cache = run_dir / "eval-difficult-cylinder-2.json"
     rec = json.loads(cache.read_text())
-    assert rec["policy_sha256"] == rep.policy_fingerprint(run_dir) and len(rec["per_episode"]["reward"]) == 2
+    name, step = rep.scored_policy(run_dir)
+    assert rec["policy"] == name and rec["policy_env_steps"] == step
+    assert rec["policy_sha256"] == rep.policy_fingerprint(run_dir / name) and len(rec["per_episode"]["reward"]) == 2
     text = (out / "report.md").read_text()
     assert "| cylinder | eGRU |" in text
     # The training section comes from the run's metrics.csv: its evaluations and its cost.
     training = report.read_training(run_dir)
     assert training["eval_env_steps"] == [6, 12] and training["env_steps"] == 12 and training["wall_s"] > 0
-    assert f"| eGRU | 1 | 12 | {training['updates']:,} |" in text
+    assert f"| eGRU | 1 | 12 | {training['updates']:,} |" in text and f"| {step:,} |" in text
     assert (out / "learning_curves.png").stat().st_size > 10_000
 
     log, again = go()
@@ -241,12 +243,41 @@ def test_reproduce_reuses_the_run_and_caches_each_evaluation(tiny_egru_run, eval
     assert "reusing evaluation" not in log and json.loads(cache.read_text())["summary"] == rec["summary"]
 
     # New weights under the same name: the cached evaluation no longer belongs to them.
-    policy = run_mod.load_policy(run_dir / "best_policy")
+    policy = run_mod.load_policy(run_dir / name)
     other, _ = make_networks(cfg.train.agent).init(jax.random.PRNGKey(7), cfg.env.episode_length)
-    run_mod.save_policy(run_dir / "best_policy", cfg, other, policy.encoder_params, {})
+    run_mod.save_policy(run_dir / name, cfg, other, policy.encoder_params, policy.scores)
     log, _ = go()
     assert "reusing evaluation" not in log
     assert json.loads(cache.read_text())["policy_sha256"] != rec["policy_sha256"]
+
+
+def test_scored_policy_replays_the_selection_rule_over_the_runs_evaluations(tmp_path):
+    """A run trained under the old strict tie rule saved its first of several tied actors as best; the
+    table must score the actor the current rule keeps (the final one), and say so when none holds it."""
+    from train.reproduce import scored_policy
+
+    cols = "env_steps,iteration_s,updates,eval/mean_reward,eval/success_rate\n"
+
+    def run(rows: str, best_step: int, final_step: int | None):
+        d = tmp_path / f"run{len(list(tmp_path.iterdir()))}"
+        d.mkdir()
+        (d / "metrics.csv").write_text(cols + rows)
+        (d / "best_policy.json").write_text(json.dumps({"scores": {"best_env_steps": best_step}}))
+        if final_step is not None:
+            (d / "final_policy.json").write_text(json.dumps({"scores": {"env_steps": final_step}}))
+        return d
+
+    tied = "5,1,0,-50.0,0.0\n8,1,3,,\n10,1,5,-50.0,0.0\n15,1,10,-50.0,0.0\n"
+    assert scored_policy(run(tied, best_step=5, final_step=15)) == ("final_policy", 15)  # old rule's file
+    assert scored_policy(run(tied, best_step=15, final_step=15)) == ("best_policy", 15)
+    better_early = "5,1,0,-40.0,0.1\n10,1,5,-50.0,0.0\n15,1,10,-45.0,0.0\n"
+    assert scored_policy(run(better_early, best_step=5, final_step=15)) == ("best_policy", 5)
+    # A tie with a lower success rate keeps the older actor.
+    assert scored_policy(run("5,1,0,-45.0,0.2\n15,1,10,-45.0,0.1\n", 5, 15)) == ("best_policy", 5)
+    with pytest.raises(ValueError, match="env step 10"):
+        scored_policy(run("5,1,0,-50.0,0.0\n10,1,5,-40.0,0.1\n15,1,10,-45.0,0.0\n", 5, 15))
+    with pytest.raises(ValueError, match="no evaluation"):
+        scored_policy(run("5,1,0,,\n", 5, None))
 
 
 def test_run_jobs_uses_worker_processes_keeps_order_and_names_a_failure():

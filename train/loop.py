@@ -143,6 +143,14 @@ def summarize(stats: dict, n: int | None = None) -> dict:
     }
 
 
+def improves(reward, success, best_reward, best_success):
+    """The best-policy rule: a higher mean evaluation reward wins; a tie goes to the newer actor unless
+    its success rate is lower. With sparse rewards equal scores (e.g. -T while nothing reaches the goal
+    yet) say nothing, and the longer-trained policy is the better guess. Works on arrays (jitted
+    training) and on Python floats (replaying a run's metrics)."""
+    return (reward > best_reward) | ((reward == best_reward) & (success >= best_success))
+
+
 def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) -> Trainer:
     loop, sac_cfg = config.loop, config.sac
     if adapter.success_tau is not None and abs(adapter.success_tau - config.replay.success_tau) > 1e-12:
@@ -324,11 +332,8 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
         return summarize(flat, loop.eval_episodes)
 
     def select(ts: TrainState, stats: dict) -> tuple[TrainState, dict]:
-        """Keep the actor params with the best mean evaluation reward so far. A tie goes to the newer
-        params when their success rate is not lower: with sparse rewards, equal scores (e.g. -T while
-        nothing reaches the goal yet) say nothing, and the longer-trained policy is the better guess."""
-        r, s = stats["mean_reward"], stats["success_rate"]
-        better = (r > ts.best_eval_reward) | ((r == ts.best_eval_reward) & (s >= ts.best_eval_success))
+        """Keep the actor params with the best mean evaluation reward so far (`improves`)."""
+        better = improves(stats["mean_reward"], stats["success_rate"], ts.best_eval_reward, ts.best_eval_success)
         pick = lambda new, old: jax.tree.map(lambda n, o: jnp.where(better, n, o), new, old)  # noqa: E731
         ts = ts.replace(
             best_actor_params=pick(ts.sac.actor_params, ts.best_actor_params),

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from train.evaluate import METRICS, sem
+from train.loop import improves
 
 LABELS = {"success": "success rate", "reward": "mean episode reward", "overshoot": "overshoot corrections",
           "distance": "distance corrections"}
@@ -115,7 +116,7 @@ def friction_figure(path: Path, samples: dict[str, np.ndarray] | None = None) ->
 
 def read_training(run_dir: Path) -> dict:
     """A run's training record from its metrics.csv: the evaluations during training (env steps, mean
-    reward, success rate) and its cost (env steps, updates, wall time summed over iterations, so
+    reward, success rate), the env step of the actor the selection rule keeps, and its cost (env steps, updates, wall time summed over iterations, so
     time lost to an interruption is not counted but each resume's compilation is)."""
     path = Path(run_dir) / "metrics.csv"
     if not path.is_file():
@@ -125,10 +126,18 @@ def read_training(run_dir: Path) -> dict:
     if not rows:
         raise ValueError(f"{path} has no rows")
     evals = [r for r in rows if r.get("eval/mean_reward")]
+    steps = [int(r["env_steps"]) for r in evals]
+    reward = [float(r["eval/mean_reward"]) for r in evals]
+    success = [float(r["eval/success_rate"]) for r in evals]
+    selected, best_r, best_s = None, -float("inf"), 0.0
+    for step, r, s in zip(steps, reward, success):  # the training's own selection, replayed
+        if improves(r, s, best_r, best_s):
+            selected, best_r, best_s = step, r, s
     return {
-        "eval_env_steps": [int(r["env_steps"]) for r in evals],
-        "eval_reward": [float(r["eval/mean_reward"]) for r in evals],
-        "eval_success": [float(r["eval/success_rate"]) for r in evals],
+        "eval_env_steps": steps,
+        "eval_reward": reward,
+        "eval_success": success,
+        "selected_env_steps": selected,
         "env_steps": int(rows[-1]["env_steps"]),
         "updates": int(rows[-1]["updates"]),
         "wall_s": float(sum(float(r["iteration_s"]) for r in rows)),
@@ -161,11 +170,13 @@ def curve_figure(training: dict[str, list[dict]], path: Path) -> None:
 
 def training_table(training: dict[str, list[dict]]) -> str:
     lines = ["| agent | seeds | env steps | gradient updates | training wall time (min, mean per seed) | "
-             "best evaluation reward (mean) |", "|---|---|---|---|---|---|"]
+             "best evaluation reward (mean) | evaluated actor (env steps) |", "|---|---|---|---|---|---|---|"]
     for agent, runs in training.items():
         best = np.mean([max(t["eval_reward"]) if t["eval_reward"] else np.nan for t in runs])
+        picked = ", ".join(f"{t['selected_env_steps']:,}" if t["selected_env_steps"] is not None else "-" for t in runs)
         lines.append(f"| {AGENT_NAMES.get(agent, agent)} | {len(runs)} | {runs[0]['env_steps']:,} | "
-                     f"{runs[0]['updates']:,} | {np.mean([t['wall_s'] for t in runs]) / 60:.1f} | {best:.2f} |")
+                     f"{runs[0]['updates']:,} | {np.mean([t['wall_s'] for t in runs]) / 60:.1f} | {best:.2f} | "
+                     f"{picked} |")
     return "\n".join(lines)
 
 

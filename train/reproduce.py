@@ -26,7 +26,7 @@ import numpy as np
 from train import presets
 from train import run as run_mod
 from train.evaluate import EvalSpec, evaluator_for
-from train.report import write_report
+from train.report import read_training, write_report
 
 AGENTS = ("vpm", "stacked", "ugru", "egru")
 PAPER_SHAPES = ("cylinder", "square", "rectangular")
@@ -45,16 +45,34 @@ def train_or_reuse(cfg: presets.RunConfig, run_dir: Path, log: Callable[[str], N
     run_mod.run(cfg, run_dir, resume=resume)
 
 
-def policy_fingerprint(run_dir: Path) -> str:
-    """sha256 of the run's best policy weights: a cached evaluation belongs to exactly these weights."""
-    return hashlib.sha256((run_dir / "best_policy.msgpack").read_bytes()).hexdigest()
+def scored_policy(run_dir: Path) -> tuple[str, int]:
+    """The saved actor the table scores, and its env steps: the best by the current selection rule
+    (`loop.improves`) replayed over the run's evaluations (`report.read_training`). A run trained under an older rule saved
+    another best; when the current rule picks the final evaluation, `final_policy` holds that actor."""
+    run_dir = Path(run_dir)
+    pick = read_training(run_dir)["selected_env_steps"]
+    if pick is None:
+        raise ValueError(f"{run_dir}/metrics.csv records no evaluation: the run has no best policy")
+    for name, key in (("best_policy", "best_env_steps"), ("final_policy", "env_steps")):  # train/run.py's records
+        meta = run_dir / f"{name}.json"
+        if meta.is_file() and json.loads(meta.read_text())["scores"].get(key) == pick:
+            return name, pick
+    raise ValueError(f"the selection rule picks the actor of env step {pick} in {run_dir}, but neither "
+                     "best_policy nor final_policy holds it (a run of an older rule): retrain it")
+
+
+def policy_fingerprint(path: Path) -> str:
+    """sha256 of policy weights (`path`.msgpack): a cached evaluation belongs to exactly these weights."""
+    return hashlib.sha256(Path(path).with_suffix(".msgpack").read_bytes()).hexdigest()
 
 
 def evaluate_run(cfg: presets.RunConfig, run_dir: Path, spec: EvalSpec, log: Callable[[str], None]) -> dict:
-    """The summary of `spec` for the run's best policy, cached in the run dir as JSON (with the policy's
-    fingerprint and the spec), so an interrupted reproduction never repeats a finished evaluation."""
+    """The summary of `spec` for the run's best policy (`scored_policy`), cached in the run dir as JSON
+    (with the policy's fingerprint and the spec), so an interrupted reproduction never repeats a
+    finished evaluation."""
     path = run_dir / f"eval-{spec.setting}-{spec.shape}-{spec.episodes}.json"
-    fingerprint = policy_fingerprint(run_dir)
+    name, step = scored_policy(run_dir)
+    fingerprint = policy_fingerprint(run_dir / name)
     spec_record = dataclasses.asdict(spec)
     if path.is_file():
         try:
@@ -65,8 +83,9 @@ def evaluate_run(cfg: presets.RunConfig, run_dir: Path, spec: EvalSpec, log: Cal
             log(f"reusing evaluation {path}")
             return cached["summary"]
     t0 = time.perf_counter()
-    res = evaluator_for(cfg.env, cfg.train.agent, spec.batch).evaluate(run_mod.load_policy(run_dir / "best_policy"), spec)
-    record = {"policy_sha256": fingerprint, "spec": spec_record, "summary": res["summary"],
+    res = evaluator_for(cfg.env, cfg.train.agent, spec.batch).evaluate(run_mod.load_policy(run_dir / name), spec)
+    record = {"policy": name, "policy_env_steps": step, "policy_sha256": fingerprint, "spec": spec_record,
+              "summary": res["summary"],
               "invalid_episodes": res["invalid_episodes"], "wall_s": time.perf_counter() - t0,
               "per_episode": {k: np.asarray(v).tolist() for k, v in res["per_episode"].items()}}
     tmp = path.with_suffix(".tmp")
