@@ -133,6 +133,18 @@ def test_the_same_seeds_give_the_same_episodes_to_every_policy(tiny_egru_run, ev
         np.testing.assert_array_equal(ra["qpos"][0], rb["qpos"][0])  # same object, start, goal
         jax.tree.map(np.testing.assert_array_equal, ra["params"], rb["params"])
     assert not np.allclose(a["recorded"][0]["action"], b["recorded"][0]["action"])  # different policies
+    # The distances: reset from the drawn start and goal (the same for both policies), end from the
+    # object's last recorded pose; success is exactly "ends within tau".
+    obj = evaluator.env("cylinder").ids.object_qpos
+    for res in (a, b):
+        per = res["per_episode"]
+        for i, r in enumerate(res["recorded"]):
+            goal = r["params"].goal[:2]
+            assert per["start_distance"][i] == pytest.approx(np.linalg.norm(r["params"].start[:2] - goal), abs=1e-6)
+            if not per["invalid"][i]:
+                assert per["final_distance"][i] == pytest.approx(np.linalg.norm(r["qpos"][-1][obj:obj + 2] - goal), abs=1e-6)
+        np.testing.assert_array_equal(per["success"], (per["final_distance"] < 0.01) & ~per["invalid"])
+    np.testing.assert_array_equal(a["per_episode"]["start_distance"], b["per_episode"]["start_distance"])
     # Episodes do not depend on the batch they were simulated in.
     p2, _ = evaluator.episode_params(spec, "cylinder", np.array([0, 1, 2]))
     p1, _ = evaluator.episode_params(spec, "cylinder", np.array([2]))
@@ -155,6 +167,8 @@ def test_report_end_to_end_from_a_trained_checkpoint(tiny_egru_run, evaluator, t
                                                    "setting": "difficult", "wall_s": 1.0})
     text = path.read_text()
     assert "| cylinder | eGRU |" in text and "| cylinder | VPM |" in text
+    d = results["egru"]["cylinder"][0]
+    assert f"{100 * d['start_distance']['mean']:.1f} -> {100 * d['final_distance']['mean']:.1f}" in text
     assert (tmp_path / "metrics.png").stat().st_size > 10_000
     assert (tmp_path / "friction_force.png").stat().st_size > 10_000
     combined = json.loads((tmp_path / "results.json").read_text())["combined"]
@@ -191,7 +205,7 @@ def test_eval_cli_writes_json_and_a_video(tiny_egru_run, tmp_path):
     assert cli_main(["eval", str(d), "--episodes", "2", "--batch", "2", "--shape", "cylinder",
                      "--setting", "standard", "--out", str(out), "--video", str(gif), "--video-episodes", "1"]) == 0
     rec = json.loads(out.read_text())
-    assert set(rec["summary"]) == {"success", "reward", "overshoot", "distance"}
+    assert set(rec["summary"]) == {"success", "reward", "overshoot", "distance", "start_distance", "final_distance"}
     assert len(rec["per_episode"]["reward"]) == 2
     import imageio.v2 as imageio
 
@@ -237,6 +251,11 @@ def test_reproduce_reuses_the_run_and_caches_each_evaluation(tiny_egru_run, eval
 
     log, again = go()
     assert "reusing evaluation" in log and again == first
+
+    stale = dict(rec, per_episode={k: v for k, v in rec["per_episode"].items() if k != "start_distance"})
+    cache.write_text(json.dumps(stale))  # a cache from before the distances were recorded
+    log, _ = go()
+    assert "reusing evaluation" not in log and "start_distance" in json.loads(cache.read_text())["per_episode"]
 
     cache.write_text("{ truncated")  # a damaged cache is recomputed, not trusted
     log, _ = go()

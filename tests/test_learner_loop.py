@@ -65,6 +65,9 @@ def test_learns_the_toy_task(learned):
     after = evaluate(state.best_actor_params, HELD_OUT)
     assert float(after["success_rate"]) >= 0.9, after
     assert float(after["mean_reward"]) > float(before["mean_reward"]) + 3.0
+    # The distances are of the same held-out episodes: the starts agree, the ends are within reach.
+    np.testing.assert_allclose(float(after["start_distance"]), float(before["start_distance"]), rtol=1e-6)
+    assert float(after["final_distance"]) < min(TAU, 0.5 * float(before["final_distance"]))
 
 
 def test_best_params_are_selected_by_mean_reward(learned):

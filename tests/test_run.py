@@ -146,3 +146,22 @@ def test_cli_rejects_bad_settings(capsys):
     with pytest.raises(SystemExit):
         cli_main(["train", "--agent", "dqn"])
     assert "dqn" in capsys.readouterr().err
+
+
+def test_progress_lines_report_success_reward_and_final_distance():
+    import io
+
+    from rich.console import Console
+
+    from train.config import LoopConfig
+    from train.progress import TrainProgress
+
+    out = io.StringIO()
+    m = {"env_steps": 500, "env_steps_per_s": 10.0, "updates_per_s": 0.0, "train/success_rate": 0.1,
+         "train/mean_reward": -45.0, "train/final_distance": 0.0875, "eval/success_rate": 0.25,
+         "eval/mean_reward": -40.0, "eval/final_distance": 0.123}
+    with TrainProgress(Console(file=out, width=200), LoopConfig(), enabled=False) as bar:
+        bar.update(m)
+    line = out.getvalue()
+    assert "500 env steps: train success 10% reward -45.0 final dist 8.8 cm" in line
+    assert "eval success 25% reward -40.0 final dist 12.3 cm" in line

@@ -250,7 +250,9 @@ class Eval:
         for col in ("metric", "mean", "SEM"):
             table.add_column(col, justify="right")
         for m, label in (("success", "success rate"), ("reward", "mean episode reward"),
-                         ("overshoot", "overshoot corrections"), ("distance", "distance corrections")):
+                         ("overshoot", "overshoot corrections"), ("distance", "distance corrections"),
+                         ("start_distance", "object-goal distance at reset (m)"),
+                         ("final_distance", "object-goal distance at the end (m)")):
             table.add_row(label, f"{s[m]['mean']:.3f}", f"{s[m]['sem']:.3f}")
         console.print(table)
         if res["invalid_episodes"]:

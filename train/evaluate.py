@@ -5,7 +5,7 @@ not depend on the policy, so every agent meets the same objects, starts and goal
 is `objects.sample(fold_in(PRNGKey(seed), i), ...)` and its observation noise key likewise. Metrics
 per setting: success rate (final distance < tau), mean episode reward (sum of the 50 sparse rewards),
 mean overshoot and distance corrections (counted per 1 ms substep by the environment), each with its
-standard error of the mean.
+standard error of the mean; and the mean object-goal distance at the start and the end.
 
 Settings: "standard" (Table I), "difficult" (the paper's figure: mass U[0.001, 0.01], sliding friction
 U[0.2, 0.3], minimum full height 0.052), or "custom" with the ranges given. Shapes: "cylinder",
@@ -32,7 +32,10 @@ from train.run import Policy
 
 SETTINGS = ("standard", "difficult", "custom")
 SHAPES = ("all", "cylinder", "square", "rectangular", "cuboid")
-METRICS = ("success", "reward", "overshoot", "distance")
+METRICS = ("success", "reward", "overshoot", "distance")  # the paper's
+# Object-goal distance (m) at reset and at the end: progress the sparse metrics cannot show (while no
+# episode ends within 1 cm, every reward is -50). Invalid episodes count as no progress.
+DISTANCE_METRICS = ("start_distance", "final_distance")
 DIFFICULT = dict(mass=(0.001, 0.01), friction=(0.2, 0.3), min_height=0.052)
 
 
@@ -82,9 +85,11 @@ def sem(x: np.ndarray) -> float:
 
 
 def summarize(per_episode: dict) -> dict:
-    """{metric: {"mean", "sem", "n"}} over per-episode arrays (success, reward, overshoot, distance)."""
+    """{metric: {"mean", "sem", "n"}} over per-episode arrays: the paper's METRICS, and the
+    DISTANCE_METRICS present."""
+    keys = METRICS + tuple(k for k in DISTANCE_METRICS if k in per_episode)
     return {k: {"mean": float(np.mean(per_episode[k])), "sem": sem(per_episode[k]), "n": int(len(per_episode[k]))}
-            for k in METRICS}
+            for k in keys}
 
 
 def _geom_types(shape: str) -> tuple[str, ...]:
@@ -136,13 +141,15 @@ class Evaluator:
             (s, _), (rewards, qpos, actions, substeps) = jax.lax.scan(
                 body, (s, nets.init_carry(keys.shape[0])), None, length=T)
             dist = jnp.linalg.norm(s.info["object_xy"] - s.info["goal_xy"], axis=-1)
+            start_dist = jnp.linalg.norm(params.start[:, :2] - params.goal[:, :2], axis=-1)
             invalid = s.info["episode_invalid"]
             return {
                 "success": (~invalid & (dist < env.config.success_tau)).astype(jnp.float32),
                 "reward": jnp.where(invalid, -float(T), jnp.sum(rewards, axis=0)),
                 "overshoot": s.info["corrections"].overshoot.astype(jnp.float32),
                 "distance": s.info["corrections"].distance.astype(jnp.float32),
-                "final_distance": dist,
+                "start_distance": start_dist,
+                "final_distance": jnp.where(invalid, start_dist, dist),
                 "invalid": invalid,
                 "qpos": jnp.concatenate([qpos0[None], qpos], axis=0).swapaxes(0, 1),  # [B, T+1, nq]
                 "action": actions.swapaxes(0, 1),

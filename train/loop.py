@@ -118,10 +118,12 @@ class Trainer:
 
 
 def episode_stats(episodes: dict, success_tau: float) -> dict:
-    """Per-episode sum of sparse rewards, final success and validity (``summarize`` gives the means);
-    invalid episodes count as failures with the worst reward -T (their ground truth may be garbage)."""
+    """Per-episode sum of sparse rewards, final success, validity and the object's distance to its goal
+    at the start and the end (``summarize`` gives the means); invalid episodes count as failures with
+    the worst reward -T and no progress (their ground truth may be garbage)."""
     T = episodes["action"].shape[1]
     rewards = replay.sparse_reward(episodes["obj_xy"][:, 1:], episodes["goal_xy"][:, None], success_tau)
+    start_dist = jnp.linalg.norm(episodes["obj_xy"][:, 0] - episodes["goal_xy"], axis=-1)
     final_dist = jnp.linalg.norm(episodes["obj_xy"][:, -1] - episodes["goal_xy"], axis=-1)
     valid = episodes["valid"]
     ep_reward = jnp.where(valid, jnp.sum(rewards, axis=1), -float(T))
@@ -130,6 +132,8 @@ def episode_stats(episodes: dict, success_tau: float) -> dict:
         "episode_success": success,
         "episode_reward": ep_reward,
         "episode_valid": valid,
+        "episode_start_distance": start_dist,
+        "episode_final_distance": jnp.where(valid, final_dist, start_dist),
     }
 
 
@@ -140,6 +144,9 @@ def summarize(stats: dict, n: int | None = None) -> dict:
         "success_rate": jnp.mean(s),
         "mean_reward": jnp.mean(stats["episode_reward"][:n]),
         "invalid_rate": 1.0 - jnp.mean(stats["episode_valid"][:n].astype(jnp.float32)),
+        # Progress the sparse reward cannot show: while nothing reaches 1 cm every reward is -T.
+        "start_distance": jnp.mean(stats["episode_start_distance"][:n]),
+        "final_distance": jnp.mean(stats["episode_final_distance"][:n]),
     }
 
 
@@ -389,7 +396,7 @@ class Runner:
 
     def eval_and_select(self, ts: TrainState) -> tuple[TrainState, dict]:
         stats = self.evaluate(ts.sac.actor_params)
-        ts, metrics = self.select(ts, {k: stats[k] for k in ("success_rate", "mean_reward", "invalid_rate")})
+        ts, metrics = self.select(ts, {k: v for k, v in stats.items() if not k.startswith("episode_")})
         return ts, metrics
 
     def is_eval_iteration(self, i: int) -> bool:

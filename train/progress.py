@@ -32,9 +32,11 @@ class TrainProgress:
 
     def update(self, m: dict) -> None:
         rates = f"{m['env_steps_per_s']:,.0f} steps/s  {m['updates_per_s']:,.0f} upd/s"
-        scores = f"train success {m['train/success_rate']:.0%} reward {m['train/mean_reward']:.1f}"
+        scores = (f"train success {m['train/success_rate']:.0%} reward {m['train/mean_reward']:.1f} "
+                  f"final dist {100 * m['train/final_distance']:.1f} cm")
         if "eval/mean_reward" in m:
-            self.last_eval = f"  eval success {m['eval/success_rate']:.0%} reward {m['eval/mean_reward']:.1f}"
+            self.last_eval = (f"  eval success {m['eval/success_rate']:.0%} reward {m['eval/mean_reward']:.1f} "
+                              f"final dist {100 * m['eval/final_distance']:.1f} cm")
             if not self.enabled:
                 self.console.print(f"{int(m['env_steps']):>9,} env steps: {scores}{self.last_eval}")
         self.bar.update(self.task, completed=int(m["env_steps"]), rates=rates, scores=scores + self.last_eval)

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from train.evaluate import METRICS, sem
+from train.evaluate import DISTANCE_METRICS, METRICS, sem
 from train.loop import improves
 
 LABELS = {"success": "success rate", "reward": "mean episode reward", "overshoot": "overshoot corrections",
@@ -24,9 +24,10 @@ SHAPE_NAMES = {"cylinder": "cylinder", "square": "square cuboid", "rectangular":
 
 
 def combine(summaries: list[dict]) -> dict:
-    """One {metric: {"mean", "sem", "n_seeds", "n_episodes"}} from the per-seed summaries."""
+    """One {metric: {"mean", "sem", "n_seeds", "n_episodes"}} from the per-seed summaries (the paper's
+    metrics, and the distances when every seed has them)."""
     out = {}
-    for m in METRICS:
+    for m in METRICS + tuple(k for k in DISTANCE_METRICS if all(k in s for s in summaries)):
         means = np.array([s[m]["mean"] for s in summaries])
         err = summaries[0][m]["sem"] if len(summaries) == 1 else sem(means)
         out[m] = {"mean": float(means.mean()), "sem": float(err), "n_seeds": len(summaries),
@@ -36,8 +37,8 @@ def combine(summaries: list[dict]) -> dict:
 
 def table(results: dict) -> str:
     """Markdown table: one row per (shape, agent)."""
-    lines = ["| shape | agent | success rate | mean reward | overshoot corr. | distance corr. |",
-             "|---|---|---|---|---|---|"]
+    lines = ["| shape | agent | success rate | mean reward | overshoot corr. | distance corr. | "
+             "object-goal distance, reset -> end (cm) |", "|---|---|---|---|---|---|---|"]
     shapes = list(next(iter(results.values())).keys())
     for shape in shapes:
         for agent in results:
@@ -45,6 +46,11 @@ def table(results: dict) -> str:
             s = c["success"]
             cells = [f"{100 * s['mean']:.0f} ± {100 * s['sem']:.0f} %"]
             cells += [f"{c[m]['mean']:.2f} ± {c[m]['sem']:.2f}" for m in ("reward", "overshoot", "distance")]
+            if "final_distance" in c:
+                cells.append(f"{100 * c['start_distance']['mean']:.1f} -> {100 * c['final_distance']['mean']:.1f} "
+                             f"± {100 * c['final_distance']['sem']:.1f}")
+            else:
+                cells.append("-")
             lines.append(f"| {SHAPE_NAMES.get(shape, shape)} | {AGENT_NAMES.get(agent, agent)} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -137,6 +143,8 @@ def read_training(run_dir: Path) -> dict:
         "eval_env_steps": steps,
         "eval_reward": reward,
         "eval_success": success,
+        # Runs logged before the distances were: NaN (the figure leaves them out).
+        "eval_final_distance": [float(r.get("eval/final_distance") or "nan") for r in evals],
         "selected_env_steps": selected,
         "env_steps": int(rows[-1]["env_steps"]),
         "updates": int(rows[-1]["updates"]),
@@ -145,20 +153,24 @@ def read_training(run_dir: Path) -> dict:
 
 
 def curve_figure(training: dict[str, list[dict]], path: Path) -> None:
-    """Mean evaluation reward and success rate during training vs env steps, one line per seed."""
+    """Mean evaluation reward, success rate and final object-goal distance during training vs env steps,
+    one line per seed."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.5))
+    fig, axes = plt.subplots(1, 3, figsize=(14, 3.5))
     for j, (agent, runs) in enumerate(training.items()):
         for k, t in enumerate(runs):
             label = AGENT_NAMES.get(agent, agent) if k == 0 else None
             axes[0].plot(t["eval_env_steps"], t["eval_reward"], "o-", color=f"C{j}", label=label, alpha=0.8)
             axes[1].plot(t["eval_env_steps"], [100 * v for v in t["eval_success"]], "o-", color=f"C{j}",
                          label=label, alpha=0.8)
-    for ax, title in zip(axes, ("mean evaluation reward", "evaluation success rate (%)")):
+            axes[2].plot(t["eval_env_steps"], [100 * v for v in t["eval_final_distance"]], "o-", color=f"C{j}",
+                         label=label, alpha=0.8)
+    for ax, title in zip(axes, ("mean evaluation reward", "evaluation success rate (%)",
+                                "object-goal distance at the end (cm)")):
         ax.set_title(title)
         ax.set_xlabel("environment steps")
         ax.grid(alpha=0.3)

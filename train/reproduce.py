@@ -25,7 +25,7 @@ import numpy as np
 
 from train import presets
 from train import run as run_mod
-from train.evaluate import EvalSpec, evaluator_for
+from train.evaluate import DISTANCE_METRICS, METRICS, EvalSpec, evaluator_for, summarize
 from train.report import read_training, write_report
 
 AGENTS = ("vpm", "stacked", "ugru", "egru")
@@ -79,9 +79,11 @@ def evaluate_run(cfg: presets.RunConfig, run_dir: Path, spec: EvalSpec, log: Cal
             cached = json.loads(path.read_text())
         except json.JSONDecodeError:
             cached = {}
-        if cached.get("policy_sha256") == fingerprint and cached.get("spec") == json.loads(json.dumps(spec_record)):
+        per = cached.get("per_episode", {})
+        if (cached.get("policy_sha256") == fingerprint and cached.get("spec") == json.loads(json.dumps(spec_record))
+                and all(k in per for k in METRICS + DISTANCE_METRICS)):  # older caches lack the distances
             log(f"reusing evaluation {path}")
-            return cached["summary"]
+            return summarize({k: np.asarray(v) for k, v in per.items()})
     t0 = time.perf_counter()
     res = evaluator_for(cfg.env, cfg.train.agent, spec.batch).evaluate(run_mod.load_policy(run_dir / name), spec)
     record = {"policy": name, "policy_env_steps": step, "policy_sha256": fingerprint, "spec": spec_record,
