@@ -146,6 +146,16 @@ def test_cli_rejects_bad_settings(capsys):
     with pytest.raises(SystemExit):
         cli_main(["train", "--agent", "dqn"])
     assert "dqn" in capsys.readouterr().err
+    assert cli_main(["train", "--success-tau", "0", "--run-dir", "/nonexistent/never"]) == 2
+    assert "success_tau" in capsys.readouterr().err
+
+
+def test_success_tau_sets_the_environment_and_the_relabelling_radius():
+    from train.cli import Train
+
+    cfg = Train(agent="vpm", preset="paper", success_tau=0.05).config()
+    assert cfg.env.success_tau == cfg.train.replay.success_tau == 0.05
+    assert Train(agent="vpm", preset="paper").config().env.success_tau == 0.01
 
 
 def test_progress_lines_report_success_reward_and_final_distance():

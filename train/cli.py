@@ -130,6 +130,9 @@ class Train:
     eval_episodes: int | None = None
     checkpoint_every: int = 10
     """also checkpoint every this many episode batches (always at evaluations and at the end)"""
+    success_tau: float | None = None
+    """success radius in metres for the reward, success and HER relabelling (default 0.01, the paper's;
+    the original vision-proprioception model used 0.05)"""
     substep_chunk: int | None = None
     """substeps per tick of the rollout's scheduler (default 50; 0: all environments step in lockstep,
     each step waiting for the slowest); changes speed only, never the episodes"""
@@ -147,6 +150,10 @@ class Train:
         })
         if self.encoder is not None:
             cfg = dataclasses.replace(cfg, encoder=str(self.encoder))
+        if self.success_tau is not None:  # the environment and the learner's relabelling share the radius
+            replay = dataclasses.replace(cfg.train.replay, success_tau=self.success_tau)
+            cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, success_tau=self.success_tau),
+                                      train=dataclasses.replace(cfg.train, replay=replay))
         return cfg
 
     def run(self) -> None:
@@ -180,7 +187,7 @@ class Train:
 
     def _overrides(self) -> list[str]:
         names = ("num_envs", "total_env_steps", "warmup_env_steps", "utd", "batch_size", "lr",
-                 "eval_every_env_steps", "eval_episodes", "encoder")
+                 "eval_every_env_steps", "eval_episodes", "encoder", "success_tau")
         return [n for n in names if getattr(self, n) is not None]
 
 
