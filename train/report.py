@@ -122,8 +122,9 @@ def friction_figure(path: Path, samples: dict[str, np.ndarray] | None = None) ->
 
 def read_training(run_dir: Path) -> dict:
     """A run's training record from its metrics.csv: the evaluations during training (env steps, mean
-    reward, success rate), the env step of the actor the selection rule keeps, and its cost (env steps, updates, wall time summed over iterations, so
-    time lost to an interruption is not counted but each resume's compilation is)."""
+    reward, success rate, final distance), the env step of the actor the selection rule keeps, and its
+    cost (env steps, updates, wall time summed over iterations, so time lost to an interruption is not
+    counted but each resume's compilation is)."""
     path = Path(run_dir) / "metrics.csv"
     if not path.is_file():
         raise ValueError(f"no metrics.csv in {run_dir}: not a training run directory")
