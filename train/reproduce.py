@@ -47,8 +47,9 @@ def train_or_reuse(cfg: presets.RunConfig, run_dir: Path, log: Callable[[str], N
 
 def scored_policy(run_dir: Path) -> tuple[str, int]:
     """The saved actor the table scores, and its env steps: the best by the current selection rule
-    (`loop.improves`) replayed over the run's evaluations (`report.read_training`). A run trained under an older rule saved
-    another best; when the current rule picks the final evaluation, `final_policy` holds that actor."""
+    (`loop.improves`) replayed over the run's evaluations (`report.read_training`). A run trained under
+    an older rule saved another best; when the current rule picks the final evaluation, `final_policy`
+    holds that actor."""
     run_dir = Path(run_dir)
     pick = read_training(run_dir)["selected_env_steps"]
     if pick is None:
