@@ -258,14 +258,20 @@ class PushEnv(Env):
         return mjx.forward(self.model(params), data)
 
     def _ground_truth(self, data: mjx.Data, params: objects.ObjectParams) -> dict:
-        a = self.ids.object_qpos
+        a, v = self.ids.object_qpos, self.ids.object_qvel
+        # Flange velocity from the Jacobian (once per env step; the substep loop never needs it).
+        p = data.site_xpos[self.ids.flange_site]
+        jacp, _ = mjx.jac(self.model(params), data, p, self.ids.link7_body)
         return {
             "object_xy": data.qpos[a : a + 2],
             "object_yaw": quat_yaw(data.qpos[a + 3 : a + 7]),
             "object_z": data.qpos[a + 2],
+            # Planar velocity of the object: vx, vy (world) and the yaw rate.
+            "object_vel": jnp.stack([data.qvel[v], data.qvel[v + 1], data.qvel[v + 5]]),
             "goal_xy": params.goal[:2],
             "goal_yaw": params.goal[2],
-            "ee_xy_true": data.site_xpos[self.ids.flange_site][:2],
+            "ee_xy_true": p[:2],
+            "ee_vel": (jacp.T @ data.qvel)[:2],
         }
 
     def _observation(self, data, params, goal_mask, key) -> dict:
