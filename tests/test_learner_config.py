@@ -4,7 +4,7 @@ import dataclasses
 
 import pytest
 
-from train.config import AgentConfig, LoopConfig, ReplayConfig, SACConfig, TrainConfig
+from train.config import AgentConfig, DemoConfig, LoopConfig, ReplayConfig, SACConfig, TrainConfig
 
 
 def test_defaults_are_the_paper_budget():
@@ -45,6 +45,23 @@ def test_updates_per_iteration_counts_the_whole_batch():
         (lambda: LoopConfig(num_envs=0), r"loop\.num_envs"),
         (lambda: LoopConfig(utd=-1.0), r"loop\.utd"),
         (lambda: LoopConfig(num_envs=1, episode_len=50, utd=0.011), r"loop\.utd .*whole number"),
+        (lambda: AgentConfig("vpm", critic_hidden=(256, 0)), r"agent\.critic_hidden must be a non-empty tuple"),
+        (lambda: AgentConfig("vpm", critic_obs="state"), r"agent\.critic_obs must be one of \('actor', 'privileged'\)"),
+        (lambda: AgentConfig("vpm", critic_layer_norm="yes"), r"agent\.critic_layer_norm must be a bool"),
+        (lambda: AgentConfig("vpm", obs_norm=1), r"agent\.obs_norm must be a bool"),
+        (lambda: AgentConfig("vpm", norm_clip=0.0), r"agent\.norm_clip must be a finite number > 0"),
+        (lambda: SACConfig(target_clip=None), r"sac\.target_clip must be a bool"),
+        (lambda: SACConfig(bc_weight=-1.0), r"sac\.bc_weight must be a finite number >= 0"),
+        (lambda: SACConfig(bc_batch_size=0), r"sac\.bc_batch_size must be a positive int"),
+        (lambda: SACConfig(q_filter="no"), r"sac\.q_filter must be a bool"),
+        (lambda: ReplayConfig(curriculum_tau=0.005), r"replay\.curriculum_tau must be None or a number >= "),
+        (lambda: ReplayConfig(curriculum_tau=0.05), r"replay\.curriculum_env_steps must be a positive int"),
+        (lambda: ReplayConfig(curriculum_env_steps=-5), r"replay\.curriculum_env_steps must be an int >= 0"),
+        (lambda: DemoConfig(fraction=1.5), r"demo\.fraction must be a number in \[0, 1\]"),
+        (lambda: DemoConfig(noise=-0.1), r"demo\.noise must be a finite number >= 0"),
+        (lambda: DemoConfig(warmup="yes"), r"demo\.warmup must be a bool"),
+        (lambda: TrainConfig(AgentConfig("vpm"), sac=SACConfig(bc_weight=1.0)),
+         r"sac\.bc_weight must be 0 unless demonstrations are collected"),
         (
             lambda: TrainConfig(
                 AgentConfig("vpm"), replay=ReplayConfig(capacity_transitions=100), loop=LoopConfig(num_envs=4)
@@ -56,3 +73,17 @@ def test_updates_per_iteration_counts_the_whole_batch():
 def test_validation_names_the_field(make, message):
     with pytest.raises(ValueError, match=message):
         make()
+
+
+def test_curriculum_radius_falls_linearly_to_the_task_radius():
+    r = ReplayConfig(success_tau=0.01, curriculum_tau=0.05, curriculum_env_steps=1000)
+    assert [float(r.reward_tau(s)) for s in (0, 500, 1000, 5000)] == pytest.approx([0.05, 0.03, 0.01, 0.01])
+    assert ReplayConfig(success_tau=0.02).reward_tau(123) == 0.02  # no curriculum
+
+
+def test_paper_values_stay_the_field_defaults():
+    """Old records read back as what they trained with: new features are off unless a preset sets them."""
+    a, s, d = AgentConfig("vpm"), SACConfig(), DemoConfig()
+    assert (a.obs_norm, a.critic_obs, a.critic_layer_norm, a.critic_widths) == (False, "actor", False, (128, 256, 64))
+    assert (s.init_alpha, s.target_clip, s.bc_weight) == (1.0, False, 0.0)
+    assert not d.enabled and ReplayConfig().curriculum_tau is None

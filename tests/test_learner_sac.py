@@ -83,7 +83,8 @@ def test_critic_loss_with_stub_networks():
 
 def test_actor_loss_with_stub_networks():
     actor_loss = make_actor_loss(StubNets())
-    (loss, logp), grads = jax.value_and_grad(actor_loss, has_aux=True)(ACTOR, CRITIC, ALPHA, BATCH, KEY)
+    (loss, aux), grads = jax.value_and_grad(actor_loss, has_aux=True)(ACTOR, CRITIC, ALPHA, BATCH, KEY)
+    logp = aux["logp"]
     # actions at t = 0, 2: sums 1.5 and 2.1.  Q1 = (3.0, 4.2), Q2 = (-1.5, -2.1 + 2) -> min (-1.5, -0.1)
     # mean(0.5 * -1.5 - min) = mean(0.75, -0.65) = 0.05
     np.testing.assert_allclose(loss, 0.05, rtol=1e-5)

@@ -1,8 +1,10 @@
 """Typed, frozen configuration of the SAC + HER learner (SPEC section 6).
 
-Defaults are the "paper budget" of the reference (one environment, 29,000 environment steps). Every
-field is checked in ``__post_init__`` so a bad value fails at construction with the field's name, not
-deep inside a jit trace.
+Field defaults are the reference's learner (one environment, 29,000 environment steps, no
+normalisation, symmetric critics, no demonstrations), so a record written before a field existed
+reads back as what it trained with; the presets (train/presets.py) choose the measured settings.
+Every field is checked in ``__post_init__`` so a bad value fails at construction with the field's
+name, not deep inside a jit trace.
 """
 
 from __future__ import annotations
@@ -11,8 +13,12 @@ import dataclasses
 import math
 from typing import Literal
 
+import jax.numpy as jnp
+
 AgentKind = Literal["vpm", "stacked", "ugru", "egru"]
 AGENT_KINDS: tuple[str, ...] = ("vpm", "stacked", "ugru", "egru")
+CriticObs = Literal["actor", "privileged"]
+CRITIC_OBS: tuple[str, ...] = ("actor", "privileged")
 
 
 def _check(ok: bool, name: str, requirement: str, value) -> None:
@@ -24,28 +30,55 @@ def _positive_int(name: str, value) -> None:
     _check(isinstance(value, int) and not isinstance(value, bool) and value > 0, name, "a positive int", value)
 
 
+def _widths(name: str, value: tuple) -> None:
+    _check(len(value) > 0 and all(isinstance(h, int) and not isinstance(h, bool) and h > 0 for h in value),
+           name, "a non-empty tuple of positive ints", value)
+
+
+def _fraction(name: str, value) -> None:
+    _check(isinstance(value, (int, float)) and not isinstance(value, bool) and 0 <= value <= 1, name,
+           "a number in [0, 1]", value)
+
+
 @dataclasses.dataclass(frozen=True)
 class AgentConfig:
     """Which feature extractor the actor and the critics use, and the MLP sizes."""
 
     kind: AgentKind
-    hidden: tuple[int, ...] = (128, 256, 64)
+    hidden: tuple[int, ...] = (128, 256, 64)  # the actor's MLP (and the critics' unless critic_hidden)
     gru_hidden: int = 32
     stack: int = 5
+    critic_hidden: tuple[int, ...] | None = None  # None: the same as ``hidden``
+    critic_layer_norm: bool = False  # LayerNorm after every hidden layer of the critics
+    # "actor": each critic has its own feature extractor over the actor's observation (the paper);
+    # "privileged": an MLP critic over the simulator's ground truth (object pose, velocity, mass,
+    # friction, size, the flange's true position and velocity) and the goal xy. The actor, and so
+    # everything exported, keeps the paper's observation.
+    critic_obs: CriticObs = "actor"
+    # Running mean/std normalisation of the networks' inputs, clipped to +-norm_clip. The actor's
+    # statistics live in its parameters (collection "norm"), so saved and exported policies carry them.
+    obs_norm: bool = False
+    norm_clip: float = 5.0
 
     def __post_init__(self):
         _check(self.kind in AGENT_KINDS, "agent.kind", f"one of {AGENT_KINDS}", self.kind)
-        # Accept lists (e.g. from a CLI) but store a tuple so the config stays hashable.
+        # Accept lists (e.g. from a CLI) but store tuples so the config stays hashable.
         object.__setattr__(self, "hidden", tuple(self.hidden))
-        _check(
-            len(self.hidden) > 0
-            and all(isinstance(h, int) and not isinstance(h, bool) and h > 0 for h in self.hidden),
-            "agent.hidden",
-            "a non-empty tuple of positive ints",
-            self.hidden,
-        )
+        _widths("agent.hidden", self.hidden)
+        if self.critic_hidden is not None:
+            object.__setattr__(self, "critic_hidden", tuple(self.critic_hidden))
+            _widths("agent.critic_hidden", self.critic_hidden)
         _positive_int("agent.gru_hidden", self.gru_hidden)
         _positive_int("agent.stack", self.stack)
+        _check(isinstance(self.critic_layer_norm, bool), "agent.critic_layer_norm", "a bool", self.critic_layer_norm)
+        _check(self.critic_obs in CRITIC_OBS, "agent.critic_obs", f"one of {CRITIC_OBS}", self.critic_obs)
+        _check(isinstance(self.obs_norm, bool), "agent.obs_norm", "a bool", self.obs_norm)
+        _check(math.isfinite(self.norm_clip) and self.norm_clip > 0, "agent.norm_clip", "a finite number > 0",
+               self.norm_clip)
+
+    @property
+    def critic_widths(self) -> tuple[int, ...]:
+        return self.hidden if self.critic_hidden is None else self.critic_hidden
 
     @property
     def recurrent(self) -> bool:
@@ -62,6 +95,15 @@ class SACConfig:
     gamma: float = 0.95
     target_entropy: float | None = None  # None -> -action_dim
     init_alpha: float = 1.0
+    # Clip TD targets to the return's range [-1/(1-gamma), 0] (rewards are -1 or 0), as OpenAI's HER.
+    target_clip: bool = False
+    # Behaviour cloning on expert demonstrations (Nair et al. 2018): the actor loss adds bc_weight times
+    # the squared distance between the deterministic action and the expert's, on a batch of
+    # bc_batch_size demonstration steps; with q_filter only where the critic rates the expert's action
+    # above the actor's. Needs demonstrations in replay (DemoConfig).
+    bc_weight: float = 0.0
+    bc_batch_size: int = 128
+    q_filter: bool = True
 
     def __post_init__(self):
         _check(math.isfinite(self.lr) and self.lr > 0, "sac.lr", "a finite number > 0", self.lr)
@@ -81,6 +123,11 @@ class SACConfig:
             "a finite number > 0",
             self.init_alpha,
         )
+        _check(isinstance(self.target_clip, bool), "sac.target_clip", "a bool", self.target_clip)
+        _check(math.isfinite(self.bc_weight) and self.bc_weight >= 0, "sac.bc_weight", "a finite number >= 0",
+               self.bc_weight)
+        _positive_int("sac.bc_batch_size", self.bc_batch_size)
+        _check(isinstance(self.q_filter, bool), "sac.q_filter", "a bool", self.q_filter)
 
     def resolved_target_entropy(self, action_dim: int) -> float:
         return -float(action_dim) if self.target_entropy is None else float(self.target_entropy)
@@ -91,6 +138,11 @@ class ReplayConfig:
     capacity_transitions: int = 300_000
     her_k: int = 4  # relabel probability her_k / (her_k + 1)
     success_tau: float = 0.01  # metres; reward is -1 while the object is this far or farther from the goal
+    # Success-radius curriculum for the learner's rewards: the radius falls linearly from
+    # curriculum_tau (None: no curriculum) to success_tau over the first curriculum_env_steps env steps
+    # after the warm-up. Evaluation always scores at the task's radius.
+    curriculum_tau: float | None = None
+    curriculum_env_steps: int = 0
 
     def __post_init__(self):
         _positive_int("replay.capacity_transitions", self.capacity_transitions)
@@ -101,10 +153,50 @@ class ReplayConfig:
             self.her_k,
         )
         _check(math.isfinite(self.success_tau) and self.success_tau > 0, "replay.success_tau", "> 0", self.success_tau)
+        if self.curriculum_tau is not None:
+            _check(math.isfinite(self.curriculum_tau) and self.curriculum_tau >= self.success_tau,
+                   "replay.curriculum_tau", f"None or a number >= replay.success_tau ({self.success_tau})",
+                   self.curriculum_tau)
+            _positive_int("replay.curriculum_env_steps", self.curriculum_env_steps)
+        _check(isinstance(self.curriculum_env_steps, int) and self.curriculum_env_steps >= 0,
+               "replay.curriculum_env_steps", "an int >= 0", self.curriculum_env_steps)
+
+    def reward_tau(self, env_steps_after_warmup):
+        """The learner's success radius after this many env steps past the warm-up (traced or not)."""
+        if self.curriculum_tau is None:
+            return self.success_tau
+        frac = jnp.clip(env_steps_after_warmup / self.curriculum_env_steps, 0.0, 1.0)
+        return self.curriculum_tau + (self.success_tau - self.curriculum_tau) * frac
 
     @property
     def relabel_prob(self) -> float:
         return self.her_k / (self.her_k + 1)
+
+
+@dataclasses.dataclass(frozen=True)
+class DemoConfig:
+    """Demonstrations from the environment's scripted expert (it reads the simulator's ground truth).
+
+    Demonstration episodes go into replay like any other (HER relabels them too) and feed the
+    behaviour-cloning term (SACConfig.bc_weight)."""
+
+    warmup: bool = False  # the warm-up's episodes are the expert's instead of uniform random actions
+    fraction: float = 0.0  # after the warm-up, this share of each batch's environments follows the expert
+    noise: float = 0.0  # std of Gaussian noise on the expert's actions (more varied demonstrations)
+    # Behaviour cloning on every stored step, labelled with what the expert would have done there
+    # (DAgger-style: the agent learns the expert's action in the states it visits itself); False: on
+    # the demonstration episodes only (Nair et al.).
+    label_all: bool = False
+
+    def __post_init__(self):
+        _check(isinstance(self.warmup, bool), "demo.warmup", "a bool", self.warmup)
+        _check(isinstance(self.label_all, bool), "demo.label_all", "a bool", self.label_all)
+        _fraction("demo.fraction", self.fraction)
+        _check(math.isfinite(self.noise) and self.noise >= 0, "demo.noise", "a finite number >= 0", self.noise)
+
+    @property
+    def enabled(self) -> bool:
+        return self.warmup or self.fraction > 0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -160,9 +252,11 @@ class TrainConfig:
     sac: SACConfig = SACConfig()
     replay: ReplayConfig = ReplayConfig()
     loop: LoopConfig = LoopConfig()
+    demo: DemoConfig = DemoConfig()
 
     def __post_init__(self):
-        for name, cls in (("agent", AgentConfig), ("sac", SACConfig), ("replay", ReplayConfig), ("loop", LoopConfig)):
+        for name, cls in (("agent", AgentConfig), ("sac", SACConfig), ("replay", ReplayConfig), ("loop", LoopConfig),
+                          ("demo", DemoConfig)):
             _check(isinstance(getattr(self, name), cls), name, f"a {cls.__name__}", getattr(self, name))
         # The ring buffer stores whole episodes; one collection batch must fit without overwriting itself.
         capacity_episodes = self.replay.capacity_transitions // self.loop.episode_len
@@ -172,3 +266,5 @@ class TrainConfig:
             f"at least loop.num_envs * loop.episode_len = {self.loop.num_envs * self.loop.episode_len}",
             self.replay.capacity_transitions,
         )
+        _check(self.sac.bc_weight == 0 or self.demo.enabled, "sac.bc_weight",
+               "0 unless demonstrations are collected (demo.warmup or demo.fraction > 0)", self.sac.bc_weight)

@@ -23,16 +23,22 @@ The environment hides behind ``EnvAdapter`` (pure functions), so the same code r
 the tests and the MJX pushing environment:
 
 * ``reset(key, num_envs) -> (env_state, step_obs, episode_info)``, ``step_obs`` = {``ee_xy [N, 2]``,
-  ``z_obj [N, 6]``, ``obj_xy [N, 2]``}, ``episode_info`` = {``z_goal [N, 6]``, ``goal_xy [N, 2]``};
+  ``z_obj [N, 6]``, ``obj_xy [N, 2]``} (+ ``priv [N, priv_dim]``), ``episode_info`` = {``z_goal [N, 6]``,
+  ``goal_xy [N, 2]``};
 * ``step(env_state, action [N, 3] in [-1, 1]) -> (env_state, step_obs, invalid [N] bool)``. An
   episode with any invalid step is stored with ``valid=False`` and never sampled;
 * optionally ``success_tau``, the task's success radius, checked against ``replay.success_tau``;
-* optionally ``scheduler`` (``SubstepScheduler``), the step in phases for asynchronous rollouts.
+* optionally ``scheduler`` (``SubstepScheduler``), the step in phases for asynchronous rollouts;
+* optionally ``priv_dim`` > 0: ``step_obs["priv"]`` is the ground-truth state a privileged critic
+  reads (its first two numbers are the object's xy);
+* optionally ``expert(step_obs, episode_info) -> action [N, 3]``: a scripted policy on the ground
+  truth, for demonstrations (``DemoConfig``) and as a baseline.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import time
 from typing import Any, Callable
 
 import flax.struct
@@ -40,9 +46,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from train import replay
+from train import normalizer, replay
 from train.config import TrainConfig
 from train.networks import Networks, make_networks
+from train.normalizer import RunningStats
 from train.replay import ReplayBuffer
 from train.sac import SACState, init_state, make_update
 
@@ -87,6 +94,8 @@ class EnvAdapter:
     # When set, rollouts step the environments asynchronously through it; the episodes are the same
     # as with ``step`` (every random draw is keyed by environment and step), only faster.
     scheduler: SubstepScheduler | None = None
+    priv_dim: int = 0
+    expert: Callable[[dict, dict], jax.Array] | None = None
 
 
 @flax.struct.dataclass
@@ -99,6 +108,7 @@ class TrainState:
     best_eval_reward: jax.Array  # -inf until the first evaluation
     best_eval_success: jax.Array
     best_env_steps: jax.Array  # env_steps at which the best params were evaluated (-1: none yet)
+    norm_stats: dict[str, RunningStats]  # running input statistics (AgentConfig.obs_norm)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -106,8 +116,8 @@ class Trainer:
     config: TrainConfig
     networks: Networks
     init: Callable[[jax.Array], TrainState]
-    collect: Callable  # (actor_params, key, num_envs, random_actions, deterministic) -> (episodes, stats)
-    rollout: Callable  # (actor_params, key, random_actions, deterministic) -> (episodes, stats), num_envs
+    collect: Callable  # (actor_params, key, num_envs, random_actions, deterministic, expert_envs) -> (episodes, stats)
+    rollout: Callable  # (actor_params, key, random_actions, deterministic, expert_envs) -> (episodes, stats)
     split_keys: Callable[[TrainState], tuple[TrainState, jax.Array, jax.Array]]
     learn: Callable[[TrainState, dict, jax.Array], tuple[TrainState, dict]]
     evaluate: Callable[[Params, jax.Array], dict]
@@ -137,11 +147,19 @@ def episode_stats(episodes: dict, success_tau: float) -> dict:
     }
 
 
+# Radii (m) at which training and evaluation also report success, whatever the task's radius.
+REPORT_RADII = (0.01, 0.02, 0.05)
+
+
 def summarize(stats: dict, n: int | None = None) -> dict:
     """Means over the first ``n`` episodes of per-episode stats (all if None)."""
     s = stats["episode_success"][:n].astype(jnp.float32)
+    valid = stats["episode_valid"][:n]
+    final = stats["episode_final_distance"][:n]
+    at = {f"success_{round(r * 100)}cm": jnp.mean((valid & (final < r)).astype(jnp.float32)) for r in REPORT_RADII}
     return {
         "success_rate": jnp.mean(s),
+        **at,
         "mean_reward": jnp.mean(stats["episode_reward"][:n]),
         "invalid_rate": 1.0 - jnp.mean(stats["episode_valid"][:n].astype(jnp.float32)),
         # Progress the sparse reward cannot show: while nothing reaches 1 cm every reward is -T.
@@ -166,7 +184,15 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
             f"got {config.replay.success_tau}"
         )
     T, N = loop.episode_len, loop.num_envs
-    nets = make_networks(config.agent, action_dim)
+    agent, demo_cfg = config.agent, config.demo
+    if demo_cfg.enabled and adapter.expert is None:
+        raise ValueError("demonstrations (demo.warmup / demo.fraction) need an environment with a scripted expert")
+    privileged = agent.critic_obs == "privileged"
+    nets = make_networks(agent, action_dim, adapter.priv_dim if privileged else 0)
+    stored_priv_dim = adapter.priv_dim if privileged else 0
+    # Behaviour cloning learns from the expert's noise-free action at every stored step: on
+    # demonstrations only, or (demo.label_all) on the agent's own steps too.
+    store_labels = demo_cfg.enabled and adapter.expert is not None
 
     # Iterations that run updates: those ending at or after the warm-up (for the lr decay horizon).
     first_learning_iteration = max(1, -(-loop.warmup_env_steps // loop.env_steps_per_iteration))
@@ -181,52 +207,62 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
         sac_state = init_state(k_sac, nets, sac_cfg, T, total_updates=max(total_updates, 1))
         return TrainState(
             sac=sac_state,
-            buffer=replay.init(config.replay, T, action_dim),
+            buffer=replay.init(config.replay, T, action_dim, stored_priv_dim, store_labels),
             key=k_loop,
             env_steps=jnp.zeros((), jnp.int32),
             best_actor_params=jax.tree.map(jnp.copy, sac_state.actor_params),  # no alias (donation)
             best_eval_reward=jnp.array(-jnp.inf, jnp.float32),
             best_eval_success=jnp.zeros((), jnp.float32),
             best_env_steps=jnp.array(-1, jnp.int32),
+            norm_stats=normalizer.init_stats(agent.critic_obs, adapter.priv_dim) if agent.obs_norm else {},
         )
 
-    def act(actor_params, carry, obs, z_goal, keys, random_actions, deterministic):
-        """Actions of every environment from its own key ([N, 2]); uniform ones during warm-up. The
-        carry advances during warm-up too, so it stays in step with the observations."""
+    def act(actor_params, carry, obs, info, keys, random_actions, deterministic, expert_envs):
+        """Action records [N, A] (or [N, 2A] with the expert's noise-free action appended, when the
+        learner stores expert labels) of every environment from its own key ([N, 2]): uniform actions
+        during a random warm-up, the expert's (plus DemoConfig.noise) where ``expert_envs`` [N], else
+        the policy's. The carry advances in every case, so it stays in step with the observations."""
         k_act, k_rand = jnp.swapaxes(jax.vmap(jax.random.split)(keys), 0, 1)
         policy_action, carry = nets.act(
-            actor_params, carry, {"ee_xy": obs["ee_xy"], "z_obj": obs["z_obj"], "z_goal": z_goal}, k_act,
+            actor_params, carry, {"ee_xy": obs["ee_xy"], "z_obj": obs["z_obj"], "z_goal": info["z_goal"]}, k_act,
             deterministic,
         )
         uniform = jax.vmap(lambda k: jax.random.uniform(k, policy_action.shape[1:], minval=-1.0, maxval=1.0))(k_rand)
-        return jnp.where(random_actions, uniform, policy_action), carry
+        action = jnp.where(random_actions, uniform, policy_action)
+        if adapter.expert is not None:
+            expert = adapter.expert(obs, info)
+            noise = demo_cfg.noise * jax.vmap(lambda k: jax.random.normal(k, policy_action.shape[1:]))(k_rand)
+            action = jnp.where(expert_envs[:, None], jnp.clip(expert + noise, -1.0, 1.0), action)
+            if store_labels:
+                action = jnp.concatenate([action, expert], axis=1)
+        return action, carry
 
     def step_keys(step_key: jax.Array, num_envs: int) -> jax.Array:
         """[N, 2]: environment i's key for the step whose key is ``step_key``."""
         return jax.vmap(lambda i: jax.random.fold_in(step_key, i))(jnp.arange(num_envs))
 
-    def lockstep(actor_params, env_state, obs0, info, ks, num_envs, random_actions, deterministic):
+    def lockstep(actor_params, env_state, obs0, info, ks, num_envs, random_actions, deterministic, expert_envs):
         def body(c, k):
             env_state, obs, carry, bad = c
-            action, carry = act(actor_params, carry, obs, info["z_goal"], step_keys(k, num_envs), random_actions,
-                                deterministic)
-            env_state, obs, invalid = adapter.step(env_state, action)
+            action, carry = act(actor_params, carry, obs, info, step_keys(k, num_envs), random_actions,
+                                deterministic, expert_envs)
+            env_state, obs, invalid = adapter.step(env_state, action[:, :action_dim])
             return (env_state, obs, carry, bad | invalid), (obs, action)
 
         init_c = (env_state, obs0, nets.init_carry(num_envs), jnp.zeros((num_envs,), bool))
         (_, _, _, bad), (obs_seq, actions) = jax.lax.scan(body, init_c, ks)
         return jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), obs_seq), jnp.swapaxes(actions, 0, 1), bad
 
-    def scheduled(actor_params, env_state, obs0, info, ks, num_envs, random_actions, deterministic):
+    def scheduled(actor_params, env_state, obs0, info, ks, num_envs, random_actions, deterministic, expert_envs):
         """Every environment runs its own T steps: each tick advances all by ``chunk`` substeps, then
         those whose step is spent finish it, record it and begin their next one."""
         sch = adapter.scheduler
         idx = jnp.arange(num_envs)
         keys_at = lambda t: jax.vmap(jax.random.fold_in)(ks[jnp.minimum(t, T - 1)], idx)  # noqa: E731
         t0 = jnp.zeros((num_envs,), jnp.int32)
-        action, carry = act(actor_params, nets.init_carry(num_envs), obs0, info["z_goal"], keys_at(t0),
-                            random_actions, deterministic)
-        env_state = sch.begin(env_state, action, jnp.ones((num_envs,), bool))
+        action, carry = act(actor_params, nets.init_carry(num_envs), obs0, info, keys_at(t0),
+                            random_actions, deterministic, expert_envs)
+        env_state = sch.begin(env_state, action[:, :action_dim], jnp.ones((num_envs,), bool))
         obs_buf = jax.tree.map(lambda x: jnp.zeros((num_envs, T) + x.shape[1:], x.dtype), obs0)
         act_buf = jnp.zeros((num_envs, T) + action.shape[1:], action.dtype).at[:, 0].set(action)
 
@@ -248,10 +284,10 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
             bad = bad | (done & invalid)
             t = t + done.astype(jnp.int32)
             more = done & (t < T)
-            action, new_carry = act(actor_params, carry, obs, info["z_goal"], keys_at(t), random_actions,
-                                    deterministic)
+            action, new_carry = act(actor_params, carry, obs, info, keys_at(t), random_actions,
+                                    deterministic, expert_envs)
             carry = select_envs(more, new_carry, carry)
-            env_state = sch.begin(env_state, action, more)
+            env_state = sch.begin(env_state, action[:, :action_dim], more)
             act_buf = put(act_buf, jnp.minimum(t, T - 1), action, more)
             return env_state, t, carry, obs_buf, act_buf, bad
 
@@ -259,15 +295,17 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
         _, _, _, obs_buf, act_buf, bad = jax.lax.while_loop(lambda c: jnp.any(c[1] < T), body, init_c)
         return obs_buf, act_buf, bad
 
-    def collect(actor_params, key, num_envs: int, random_actions, deterministic):
+    def collect(actor_params, key, num_envs: int, random_actions, deterministic, expert_envs):
         """One whole episode in ``num_envs`` envs -> (episode records [num_envs, ...], stats). Step t
         of environment i draws its randomness from fold_in(key_t, i), so an episode does not depend on
         how the environments were scheduled."""
         k_reset, k_roll = jax.random.split(key)
         env_state, obs0, info = adapter.reset(k_reset, num_envs)
         run = scheduled if adapter.scheduler is not None else lockstep
-        obs_seq, actions, bad = run(actor_params, env_state, obs0, info, jax.random.split(k_roll, T), num_envs,
-                                    random_actions, deterministic)
+        expert_envs = jnp.broadcast_to(expert_envs, (num_envs,))
+        obs_seq, records, bad = run(actor_params, env_state, obs0, info, jax.random.split(k_roll, T), num_envs,
+                                    random_actions, deterministic, expert_envs)
+        actions = records[..., :action_dim]
 
         def with_reset(name):  # [N, T+1, .]: the reset observation first, then the T step observations
             return jnp.concatenate([obs0[name][:, None], obs_seq[name]], axis=1)
@@ -280,23 +318,40 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
             "goal_xy": info["goal_xy"],
             "action": actions,
             "valid": ~bad,
+            "demo": expert_envs,
         }
+        if stored_priv_dim:
+            episodes["priv"] = with_reset("priv")
+        if store_labels:
+            episodes["expert_action"] = records[..., action_dim:]
         return episodes, episode_stats(episodes, config.replay.success_tau)
 
-    def run_updates(sac_state, buffer, key):
+    bc = sac_cfg.bc_weight > 0
+
+    def run_updates(sac_state, buffer, key, tau):
         def body(s, k):
-            k_sample, k_update = jax.random.split(k)
-            batch = replay.sample(buffer, k_sample, sac_cfg.batch_size)
-            return update(s, batch, k_update)
+            k_sample, k_demo, k_update = jax.random.split(k, 3)
+            batch = replay.sample(buffer, k_sample, sac_cfg.batch_size, success_tau=tau)
+            demo = (replay.sample(buffer, k_demo, sac_cfg.bc_batch_size, demos_only=not demo_cfg.label_all,
+                                  relabel=False) if bc else None)
+            return update(s, batch, k_update, demo)
 
         sac_state, metrics = jax.lax.scan(body, sac_state, jax.random.split(key, loop.updates_per_iteration))
         return sac_state, jax.tree.map(jnp.mean, metrics)
 
-    def rollout(actor_params, key, random_actions, deterministic):
+    def rollout(actor_params, key, random_actions, deterministic, expert_envs=False):
         """One episode in each of the ``num_envs`` training envs. The flags are traced, so training
-        rollouts and evaluation chunks share one compiled function (on CPU the environment's
-        compilation is the largest fixed cost of a run)."""
-        return collect(actor_params, key, N, random_actions, deterministic)
+        rollouts, demonstrations and evaluation chunks share one compiled function (on CPU the
+        environment's compilation is the largest fixed cost of a run)."""
+        return collect(actor_params, key, N, random_actions, deterministic, expert_envs)
+
+    def with_norm(sac_state: SACState, stats) -> SACState:
+        """The networks' "norm" variables set from the running statistics."""
+        return sac_state.replace(
+            actor_params=normalizer.write(sac_state.actor_params, stats),
+            critic_params=normalizer.write(sac_state.critic_params, stats),
+            target_critic_params=normalizer.write(sac_state.target_critic_params, stats),
+        )
 
     def split_keys(ts: TrainState):
         """-> (state with its key advanced, collection key, update key)."""
@@ -308,23 +363,32 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
         buffer = replay.add(ts.buffer, episodes)
         env_steps = ts.env_steps + N * T
         learn = (env_steps >= loop.warmup_env_steps) & (replay.num_valid_transitions(buffer) >= sac_cfg.batch_size)
+        if bc:
+            learn = learn & (replay.num_demo_episodes(buffer) > 0)
+        norm_stats, sac_state = ts.norm_stats, ts.sac
+        if agent.obs_norm:
+            norm_stats = normalizer.update_stats(norm_stats, episodes, agent.critic_obs)
+            sac_state = with_norm(sac_state, norm_stats)
+        tau = config.replay.reward_tau(jnp.maximum(env_steps - loop.warmup_env_steps, 0).astype(jnp.float32))
 
-        update_metrics_shape = jax.eval_shape(run_updates, ts.sac, buffer, k_update)[1]
+        update_metrics_shape = jax.eval_shape(run_updates, sac_state, buffer, k_update, tau)[1]
         skip_metrics = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), update_metrics_shape)
         if loop.updates_per_iteration > 0:
             sac_state, update_metrics = jax.lax.cond(
-                learn, run_updates, lambda s, b, k: (s, skip_metrics), ts.sac, buffer, k_update
+                learn, run_updates, lambda s, b, k, t: (s, skip_metrics), sac_state, buffer, k_update, tau
             )
         else:
-            sac_state, update_metrics = ts.sac, skip_metrics
+            update_metrics = skip_metrics
 
-        new_ts = ts.replace(sac=sac_state, buffer=buffer, env_steps=env_steps)
+        new_ts = ts.replace(sac=sac_state, buffer=buffer, env_steps=env_steps, norm_stats=norm_stats)
         metrics = {
             **{f"sac/{k}": v for k, v in update_metrics.items()},
             "learning": learn,
             "env_steps": env_steps,
             "updates": sac_state.step,
             "replay/valid_episodes": replay.num_valid_episodes(buffer),
+            "replay/demo_episodes": replay.num_demo_episodes(buffer),
+            "replay/reward_tau": jnp.asarray(tau, jnp.float32),
         }
         return new_ts, metrics
 
@@ -334,7 +398,7 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
         """``eval_episodes`` deterministic episodes, run as ceil(eval_episodes / num_envs) chunks of
         ``num_envs`` (chunk c uses fold_in(key, c)); means over the first ``eval_episodes``."""
         keys = jax.vmap(lambda c: jax.random.fold_in(key, c))(jnp.arange(num_eval_chunks))
-        stats = jax.lax.map(lambda k: rollout(actor_params, k, False, True)[1], keys)
+        stats = jax.lax.map(lambda k: rollout(actor_params, k, False, True, False)[1], keys)
         flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), stats)
         return summarize(flat, loop.eval_episodes)
 
@@ -376,28 +440,53 @@ class Runner:
         self.learn = jax.jit(trainer.learn, donate_argnums=0)
         self.select = jax.jit(trainer.select, donate_argnums=0)
 
-    def iteration(self, ts: TrainState) -> tuple[TrainState, dict]:
-        warmup = self.trainer.config.loop.warmup_env_steps
-        ts, k_collect, k_update = self.trainer.split_keys(ts)
-        random_actions = jnp.asarray(int(ts.env_steps) < warmup)
-        episodes, stats = self.rollout(ts.sac.actor_params, k_collect, random_actions, jnp.asarray(False))
-        ts, metrics = self.learn(ts, episodes, k_update)
-        return ts, {**{f"train/{k}": v for k, v in summarize(stats).items()}, **metrics}
+    def expert_envs(self, env_steps: int) -> np.ndarray:
+        """[N] bool: which environments of the next batch follow the scripted expert. During the
+        warm-up all of them with ``demo.warmup`` (none otherwise: random actions); after it, the first
+        round(fraction * N) (the expert's share of every batch, fixed so every batch compiles alike)."""
+        cfg = self.trainer.config
+        n = cfg.loop.num_envs
+        if env_steps < cfg.loop.warmup_env_steps:
+            k = n if cfg.demo.warmup else 0
+        else:
+            k = int(round(cfg.demo.fraction * n))
+        return np.arange(n) < k
 
-    def evaluate(self, actor_params, key: jax.Array | None = None) -> dict:
-        """The trainer's ``evaluate`` through the shared rollout; per-episode arrays included."""
+    def iteration(self, ts: TrainState) -> tuple[TrainState, dict]:
+        cfg = self.trainer.config
+        ts, k_collect, k_update = self.trainer.split_keys(ts)
+        steps = int(ts.env_steps)
+        random_actions = jnp.asarray(steps < cfg.loop.warmup_env_steps and not cfg.demo.warmup)
+        expert = self.expert_envs(steps)
+        t0 = time.perf_counter()
+        episodes, stats = jax.block_until_ready(
+            self.rollout(ts.sac.actor_params, k_collect, random_actions, jnp.asarray(False), jnp.asarray(expert)))
+        t1 = time.perf_counter()
+        ts, metrics = jax.block_until_ready(self.learn(ts, episodes, k_update))
+        metrics.update(rollout_s=t1 - t0, learn_s=time.perf_counter() - t1)
+        # Training metrics describe the agent's own episodes when there are any.
+        own = ~expert if (~expert).any() else expert
+        stats = {k: v[own] for k, v in stats.items()}
+        return ts, {**{f"train/{k}": v for k, v in summarize(stats).items()}, **metrics,
+                    "train/expert_envs": int(expert.sum())}
+
+    def evaluate(self, actor_params, key: jax.Array | None = None, expert: bool = False) -> dict:
+        """The trainer's ``evaluate`` through the shared rollout; per-episode arrays included.
+        ``expert`` evaluates the environment's scripted expert instead of the actor."""
         t = self.trainer
         key = t.eval_key if key is None else key
-        chunks = [self.rollout(actor_params, jax.random.fold_in(key, c), jnp.asarray(False), jnp.asarray(True))[1]
+        flags = (jnp.asarray(False), jnp.asarray(True), jnp.asarray(np.full(t.config.loop.num_envs, expert)))
+        chunks = [self.rollout(actor_params, jax.random.fold_in(key, c), *flags)[1]
                   for c in range(t.num_eval_chunks)]
         n = t.config.loop.eval_episodes
         flat = {k: jnp.concatenate([c[k] for c in chunks])[:n] for k in chunks[0]}
         return {**summarize(flat), **flat}
 
     def eval_and_select(self, ts: TrainState) -> tuple[TrainState, dict]:
+        t0 = time.perf_counter()
         stats = self.evaluate(ts.sac.actor_params)
         ts, metrics = self.select(ts, {k: v for k, v in stats.items() if not k.startswith("episode_")})
-        return ts, metrics
+        return ts, {**metrics, "eval_s": time.perf_counter() - t0}
 
     def is_eval_iteration(self, i: int) -> bool:
         """Evaluate after iteration ``i`` (0-based) when it crosses a multiple of eval_every_env_steps,

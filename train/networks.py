@@ -13,6 +13,13 @@ Two views of the same networks:
 
 Observation per step: ``ee_xy (2)``, ``z_obj (6)``, ``z_goal (6)``; flat order [ee_xy, z_obj, z_goal].
 The GRU input per step is [z_obj_t, z_goal, ee_xy_t] (SPEC section 6; exported weights assume it).
+
+Options (``AgentConfig``): with ``obs_norm`` every network first standardises its inputs with running
+statistics held in its variables' "norm" collection (``ee_xy`` and the latent ``z``, shared by the
+object and goal codes; the privileged critic's ``priv`` and ``goal``); the learner writes them after
+every batch and gradients never reach them. With ``critic_obs="privileged"`` the critics are MLPs over
+the episode's ground-truth state ``priv [B, L, P]`` at the step (its first two numbers are the object's
+xy, the achieved goal) and the goal ``goal_xy [B, 2]``; the actor never sees either.
 """
 
 from __future__ import annotations
@@ -136,12 +143,48 @@ def take_steps(features: jax.Array, idx: jax.Array) -> jax.Array:
 
 class MLP(nn.Module):
     hidden: Sequence[int]
+    layer_norm: bool = False
 
     @nn.compact
     def __call__(self, x):
         for h in self.hidden:
-            x = nn.relu(nn.Dense(h)(x))
+            x = nn.Dense(h)(x)
+            if self.layer_norm:
+                x = nn.LayerNorm()(x)
+            x = nn.relu(x)
         return x
+
+
+# Input groups standardised by each network when obs_norm is on (name -> width).
+ACTOR_NORM_GROUPS = {"ee_xy": 2, "z": 6}
+NORM_MIN_STD = 1e-3
+
+
+def critic_norm_groups(agent: AgentConfig, priv_dim: int) -> dict[str, int]:
+    return {"priv": priv_dim, "goal": 2} if agent.critic_obs == "privileged" else dict(ACTOR_NORM_GROUPS)
+
+
+class Normalizer(nn.Module):
+    """(x - mean) / std, clipped, per named input group; identity when ``groups`` is empty. The
+    statistics are variables of collection "norm" (mean 0, std 1 at init) that the learner overwrites;
+    stop_gradient keeps the optimiser's hands off them (their Adam updates are exactly zero)."""
+
+    groups: dict
+    clip: float = 5.0
+
+    def setup(self):
+        self.stats = {name: (self.variable("norm", f"{name}_mean", jnp.zeros, (dim,)),
+                             self.variable("norm", f"{name}_std", jnp.ones, (dim,))) for name, dim in self.groups.items()}
+
+    def __call__(self, name: str, x: jax.Array) -> jax.Array:
+        if name not in self.stats:
+            return x
+        mean, std = (jax.lax.stop_gradient(v.value) for v in self.stats[name])
+        return jnp.clip((x - mean) / std, -self.clip, self.clip)
+
+
+def normalize_inputs(norm: Normalizer, ee_xy, z_obj, z_goal):
+    return norm("ee_xy", ee_xy), norm("z", z_obj), norm("z", z_goal)
 
 
 class Actor(nn.Module):
@@ -149,6 +192,7 @@ class Actor(nn.Module):
     action_dim: int = ACTION_DIM
 
     def setup(self):
+        self.norm = Normalizer(ACTOR_NORM_GROUPS if self.agent.obs_norm else {}, self.agent.norm_clip)
         self.features = make_extractor(self.agent)
         self.mlp = MLP(self.agent.hidden)
         self.mean_head = nn.Dense(self.action_dim)
@@ -160,34 +204,58 @@ class Actor(nn.Module):
 
     def __call__(self, ee_xy, z_obj, z_goal, idx):
         """Gaussian parameters (mean, log_std) [B, K, A] at steps idx [B, K] of the episodes."""
-        return self.head(take_steps(self.features(ee_xy, z_obj, z_goal), idx))
+        x = normalize_inputs(self.norm, ee_xy, z_obj, z_goal)
+        return self.head(take_steps(self.features(*x), idx))
 
     def step(self, carry, ee_xy, z_obj, z_goal):
-        carry, feat = self.features.step(carry, ee_xy, z_obj, z_goal)
+        carry, feat = self.features.step(carry, *normalize_inputs(self.norm, ee_xy, z_obj, z_goal))
         return carry, self.head(feat)
 
 
 class QNetwork(nn.Module):
+    """Q over the actor's observation history (the paper's critic)."""
+
     agent: AgentConfig
 
     @nn.compact
-    def __call__(self, ee_xy, z_obj, z_goal, idx, action):
+    def __call__(self, episode, idx, action):
         """Q [B, K] of ``action [B, K, A]`` at steps idx [B, K]."""
-        feat = take_steps(make_extractor(self.agent, name="features")(ee_xy, z_obj, z_goal), idx)
-        h = MLP(self.agent.hidden, name="mlp")(jnp.concatenate([feat, action], axis=-1))
+        norm = Normalizer(ACTOR_NORM_GROUPS if self.agent.obs_norm else {}, self.agent.norm_clip, name="norm")
+        x = normalize_inputs(norm, episode["ee_xy"], episode["z_obj"], episode["z_goal"])
+        feat = take_steps(make_extractor(self.agent, name="features")(*x), idx)
+        h = MLP(self.agent.critic_widths, self.agent.critic_layer_norm, name="mlp")(jnp.concatenate([feat, action], -1))
         return nn.Dense(1, name="q_head")(h)[..., 0]
 
 
-# Twin critics: two independent Q networks (own extractor each), stored with a leading axis of 2 and
-# evaluated in one vectorised pass.
-TwinQ = nn.vmap(
-    QNetwork,
-    variable_axes={"params": 0},
-    split_rngs={"params": True},
-    in_axes=None,
-    out_axes=0,
-    axis_size=2,
-)
+class PrivilegedQNetwork(nn.Module):
+    """Q over the simulator's ground truth at the step and the goal (asymmetric actor-critic): the
+    state is Markov, so no history is needed."""
+
+    agent: AgentConfig
+    priv_dim: int
+
+    @nn.compact
+    def __call__(self, episode, idx, action):
+        norm = Normalizer(critic_norm_groups(self.agent, self.priv_dim) if self.agent.obs_norm else {},
+                          self.agent.norm_clip, name="norm")
+        priv = take_steps(episode["priv"], idx)  # [B, K, P]
+        goal = jnp.broadcast_to(episode["goal_xy"][:, None], priv.shape[:-1] + (2,))
+        # The goal relative to the achieved goal (priv's first two numbers), in metres: the distance
+        # that decides the reward, given directly rather than left for the MLP to subtract.
+        x = jnp.concatenate([norm("priv", priv), norm("goal", goal), (goal - priv[..., :2]) * 10.0, action], -1)
+        h = MLP(self.agent.critic_widths, self.agent.critic_layer_norm, name="mlp")(x)
+        return nn.Dense(1, name="q_head")(h)[..., 0]
+
+
+def _twin(module):
+    # Twin critics: two independent Q networks stored with a leading axis of 2 and evaluated in one
+    # vectorised pass (their normalisation statistics are stacked too and kept equal).
+    return nn.vmap(module, variable_axes={"params": 0, "norm": 0}, split_rngs={"params": True}, in_axes=None,
+                   out_axes=0, axis_size=2)
+
+
+TwinQ = _twin(QNetwork)
+TwinPrivilegedQ = _twin(PrivilegedQNetwork)
 
 
 def squash(mean: jax.Array, log_std: jax.Array, noise: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -211,6 +279,7 @@ class Networks:
 
     agent: AgentConfig
     action_dim: int = ACTION_DIM
+    priv_dim: int = 0  # width of the ground-truth state the privileged critic reads
 
     @property
     def actor(self) -> Actor:
@@ -218,18 +287,33 @@ class Networks:
 
     @property
     def critic(self) -> nn.Module:
+        if self.agent.critic_obs == "privileged":
+            if self.priv_dim < 2:  # only the learner builds critics; policies and exports need the actor alone
+                raise ValueError("agent.critic_obs 'privileged' needs an environment that reports its ground-truth "
+                                 f"state (priv_dim >= 2, got {self.priv_dim})")
+            return TwinPrivilegedQ(self.agent, self.priv_dim)
         return TwinQ(self.agent)
+
+    def dummy_episode(self, episode_len: int) -> dict:
+        L = episode_len + 1
+        ep = {"ee_xy": jnp.zeros((1, L, 2)), "z_obj": jnp.zeros((1, L, 6)), "z_goal": jnp.zeros((1, 6)),
+              "goal_xy": jnp.zeros((1, 2))}
+        if self.priv_dim:
+            ep["priv"] = jnp.zeros((1, L, self.priv_dim))
+        return ep
 
     def init(self, key: jax.Array, episode_len: int) -> tuple[Params, Params]:
         """(actor_params, critic_params) for episodes of ``episode_len`` steps (``episode_len + 1`` obs)."""
         ka, kc = jax.random.split(key)
-        ee = jnp.zeros((1, episode_len + 1, 2))
-        z = jnp.zeros((1, episode_len + 1, 6))
-        g = jnp.zeros((1, 6))
+        ep = self.dummy_episode(episode_len)
         idx = jnp.zeros((1, 1), jnp.int32)
-        actor = self.actor.init(ka, ee, z, g, idx)
-        critic = self.critic.init(kc, ee, z, g, idx, jnp.zeros((1, 1, self.action_dim)))
-        return actor, critic
+        critic = self.critic.init(kc, ep, idx, jnp.zeros((1, 1, self.action_dim)))
+        return self.init_actor(ka, episode_len), critic
+
+    def init_actor(self, key: jax.Array, episode_len: int) -> Params:
+        """The actor's variables alone (what saved and exported policies hold)."""
+        ep = self.dummy_episode(episode_len)
+        return self.actor.init(key, ep["ee_xy"], ep["z_obj"], ep["z_goal"], jnp.zeros((1, 1), jnp.int32))
 
     def policy(self, actor_params, episode, idx, noise) -> tuple[jax.Array, jax.Array]:
         """Actions [B, K, A] and log-probs [B, K] at steps idx [B, K]; ``noise [B, K, A]`` is the
@@ -239,7 +323,12 @@ class Networks:
 
     def q(self, critic_params, episode, idx, action) -> jax.Array:
         """Twin Q values [2, B, K]."""
-        return self.critic.apply(critic_params, episode["ee_xy"], episode["z_obj"], episode["z_goal"], idx, action)
+        return self.critic.apply(critic_params, episode, idx, action)
+
+    def deterministic_action(self, actor_params, episode, idx) -> jax.Array:
+        """tanh(mean) [B, K, A] at steps idx (what evaluation and export run)."""
+        mean, _ = self.actor.apply(actor_params, episode["ee_xy"], episode["z_obj"], episode["z_goal"], idx)
+        return jnp.tanh(mean)
 
     def init_carry(self, batch: int) -> jax.Array:
         return make_extractor(self.agent).initial_carry(batch)
@@ -260,5 +349,5 @@ class Networks:
         return action, carry
 
 
-def make_networks(agent: AgentConfig, action_dim: int = ACTION_DIM) -> Networks:
-    return Networks(agent, action_dim)
+def make_networks(agent: AgentConfig, action_dim: int = ACTION_DIM, priv_dim: int = 0) -> Networks:
+    return Networks(agent, action_dim, priv_dim)

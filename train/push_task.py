@@ -1,20 +1,66 @@
 """The MJX pushing environment behind the learner's `EnvAdapter`: masks in, latents out.
 
 Each environment step's object mask is encoded once, here, on device; the goal mask once per episode.
-The learner (and its replay buffer) only ever sees the 6-number latents, the noisy flange xy, and the
-ground-truth object and goal xy that rewards and HER relabelling need. An environment whose episode
+The actor only ever sees the 6-number latents and the noisy flange xy. The learner also gets the
+ground-truth object and goal xy that rewards and HER relabelling need, and ``priv``, the simulator's
+state for a privileged critic and the scripted expert (`PRIV_LAYOUT`). An environment whose episode
 went invalid (NaN, object through or off the table) reports it through `episode_invalid`; the learner
-stores that episode as invalid and never samples it (SPEC section 8).
+stores that episode as invalid and never samples it.
 """
 
 from __future__ import annotations
 
 import jax
+import jax.numpy as jnp
 
 from mjx_push import encoder as enc
+from mjx_push import expert as expert_mod
 from mjx_push.batch import BatchState, PushBatch
 from mjx_push.env import EnvConfig
 from train.loop import EnvAdapter, SubstepScheduler
+
+# The privileged state, per environment step: name -> width, in order. The object's xy comes first
+# (the learner's convention: priv[:2] is the achieved goal).
+PRIV_LAYOUT = (("object_xy", 2), ("object_yaw_cos_sin", 2), ("object_vel", 3), ("ee_xy", 2), ("ee_vel", 2),
+               ("size", 3), ("is_box", 1), ("log_mass", 1), ("friction", 1))
+PRIV_DIM = sum(w for _, w in PRIV_LAYOUT)
+
+
+def _slices() -> dict[str, slice]:
+    out, i = {}, 0
+    for name, w in PRIV_LAYOUT:
+        out[name] = slice(i, i + w)
+        i += w
+    return out
+
+
+PRIV = _slices()
+
+
+def privileged_state(s: BatchState, is_box: jax.Array) -> jax.Array:
+    """[N, PRIV_DIM] ground truth of every environment (never observed by the actor)."""
+    params = s.info("params")
+    yaw = s.info("object_yaw")
+    parts = {
+        "object_xy": s.info("object_xy"),
+        "object_yaw_cos_sin": jnp.stack([jnp.cos(yaw), jnp.sin(yaw)], -1),
+        "object_vel": s.info("object_vel"),
+        "ee_xy": s.info("ee_xy_true"),
+        "ee_vel": s.info("ee_vel"),
+        "size": params.size,
+        "is_box": is_box.astype(jnp.float32)[:, None],
+        "log_mass": jnp.log(params.mass)[:, None],
+        "friction": params.friction[:, :1],
+    }
+    return jnp.concatenate([parts[name] for name, _ in PRIV_LAYOUT], axis=-1)
+
+
+def expert_ground_truth(priv: jax.Array, goal_xy: jax.Array) -> dict:
+    """The scripted expert's inputs (mjx_push.expert.act) read back from the privileged state."""
+    cs = priv[..., PRIV["object_yaw_cos_sin"]]
+    return {"ee_xy": priv[..., PRIV["ee_xy"]], "object_xy": priv[..., PRIV["object_xy"]],
+            "object_yaw": jnp.arctan2(cs[..., 1], cs[..., 0]), "goal_xy": goal_xy,
+            "size": priv[..., PRIV["size"]], "is_box": priv[..., PRIV["is_box"]][..., 0] > 0.5}
 
 
 # Substeps per scheduler tick: each environment takes its next action as soon as its own step's a_s
@@ -23,9 +69,11 @@ from train.loop import EnvAdapter, SubstepScheduler
 DEFAULT_SUBSTEP_CHUNK = 50
 
 
-def make_push_adapter(env_config: EnvConfig, encoder_params, substep_chunk: int = DEFAULT_SUBSTEP_CHUNK) -> EnvAdapter:
+def make_push_adapter(env_config: EnvConfig, encoder_params, substep_chunk: int = DEFAULT_SUBSTEP_CHUNK,
+                      expert_config: expert_mod.ExpertConfig = expert_mod.ExpertConfig()) -> EnvAdapter:
     """Adapter over `PushBatch(env_config, n)`; one batch object is built per environment count `n`.
-    `substep_chunk` 0 steps all environments in lockstep; both give the same episodes."""
+    `substep_chunk` 0 steps all environments in lockstep; both give the same episodes. The adapter's
+    expert is `mjx_push.expert` under `expert_config`."""
     if not (isinstance(substep_chunk, int) and substep_chunk >= 0):
         raise ValueError(f"substep_chunk must be an integer >= 0 (0: lockstep), got {substep_chunk!r}")
     batches: dict[int, PushBatch] = {}
@@ -35,10 +83,18 @@ def make_push_adapter(env_config: EnvConfig, encoder_params, substep_chunk: int 
             batches[n] = PushBatch(env_config, n)
         return batches[n]
 
+    def is_box(s: BatchState) -> jax.Array:
+        b = batch(s.num_envs)
+        return jnp.asarray([g == "box" for g in b.geom_types])[b.shape_ids]
+
     def observe(s: BatchState) -> dict:
         obs = s.obs
         return {"ee_xy": obs["ee_xy"], "z_obj": enc.encode(encoder_params, obs["object_mask"]),
-                "obj_xy": s.info("object_xy")}
+                "obj_xy": s.info("object_xy"), "priv": privileged_state(s, is_box(s))}
+
+    def expert(step_obs: dict, info: dict) -> jax.Array:
+        gt = expert_ground_truth(step_obs["priv"], info["goal_xy"])
+        return jax.vmap(lambda g: expert_mod.act(expert_config, env_config, g))(gt)
 
     def reset(key: jax.Array, num_envs: int):
         s = batch(num_envs).reset(key)
@@ -63,4 +119,5 @@ def make_push_adapter(env_config: EnvConfig, encoder_params, substep_chunk: int 
         return s, observe(s), s.info("episode_invalid")
 
     return EnvAdapter(reset=reset, step=step, success_tau=env_config.success_tau,
-                      scheduler=SubstepScheduler(begin, advance, ready, finish, substep_chunk) if substep_chunk else None)
+                      scheduler=SubstepScheduler(begin, advance, ready, finish, substep_chunk) if substep_chunk else None,
+                      priv_dim=PRIV_DIM, expert=expert)

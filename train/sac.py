@@ -8,6 +8,11 @@ always bootstraps.
 
 Batches come from ``train.replay.sample``: whole episodes plus the transition's step ``t``; networks
 compute history features at t and t+1 with the (possibly relabelled) goal.
+
+Options (``SACConfig``): ``target_clip`` clips TD targets to the return's range [-1/(1-gamma), 0];
+``bc_weight`` adds behaviour cloning on a second batch of expert demonstration steps (never
+relabelled), Q-filtered by default: the squared error between the actor's deterministic action and the
+expert's counts only where the updated critics rate the expert's action higher.
 """
 
 from __future__ import annotations
@@ -72,27 +77,49 @@ def _at(batch, offset):
     return (batch["t"] + offset)[:, None]  # [B, 1] step index for the networks
 
 
-def make_critic_loss(nets: Networks, gamma: float) -> Callable:
+def make_critic_loss(nets: Networks, gamma: float, target_clip: bool = False) -> Callable:
     def critic_loss(critic_params, target_critic_params, actor_params, alpha, batch, key):
         B = batch["t"].shape[0]
         noise = jax.random.normal(key, (B, 1, nets.action_dim))
         next_action, next_logp = nets.policy(actor_params, batch, _at(batch, 1), noise)
         next_q = nets.q(target_critic_params, batch, _at(batch, 1), next_action)[..., 0]
-        target = jax.lax.stop_gradient(td_target(batch["reward"], next_q, next_logp[:, 0], alpha, gamma))
+        target = td_target(batch["reward"], next_q, next_logp[:, 0], alpha, gamma)
+        if target_clip:  # rewards are -1 or 0, so every return lies in [-1/(1-gamma), 0]
+            target = jnp.clip(target, -1.0 / (1.0 - gamma), 0.0)
+        target = jax.lax.stop_gradient(target)
         q = nets.q(critic_params, batch, _at(batch, 0), batch["action"][:, None])[..., 0]
         return critic_loss_value(q, target), {"q": jnp.mean(q), "target_q": jnp.mean(target)}
 
     return critic_loss
 
 
-def make_actor_loss(nets: Networks) -> Callable:
-    def actor_loss(actor_params, critic_params, alpha, batch, key):
+def bc_loss_value(action, expert_action, keep):
+    """Mean over the batch of ``keep`` * squared action error (summed over action dimensions)."""
+    return jnp.mean(keep * jnp.sum((action - expert_action) ** 2, axis=-1))
+
+
+def make_actor_loss(nets: Networks, bc_weight: float = 0.0, q_filter: bool = True) -> Callable:
+    def actor_loss(actor_params, critic_params, alpha, batch, key, demo=None):
         B = batch["t"].shape[0]
         noise = jax.random.normal(key, (B, 1, nets.action_dim))
         action, logp = nets.policy(actor_params, batch, _at(batch, 0), noise)
         q_pi = nets.q(critic_params, batch, _at(batch, 0), action)[..., 0]
         logp = logp[:, 0]
-        return actor_loss_value(logp, q_pi, alpha), logp
+        loss = actor_loss_value(logp, q_pi, alpha)
+        aux = {"logp": logp}
+        if demo is not None and bc_weight > 0:
+            pi = nets.deterministic_action(actor_params, demo, _at(demo, 0))[:, 0]
+            expert = demo.get("expert_action", demo["action"])  # the noise-free label when stored
+            if q_filter:  # clone only where the critics prefer the expert's action to the actor's
+                q_e = jnp.min(nets.q(critic_params, demo, _at(demo, 0), expert[:, None]), axis=0)[:, 0]
+                q_a = jnp.min(nets.q(critic_params, demo, _at(demo, 0), jax.lax.stop_gradient(pi)[:, None]), axis=0)[:, 0]
+                keep = jax.lax.stop_gradient((q_e > q_a).astype(jnp.float32))
+            else:
+                keep = jnp.ones(pi.shape[:1])
+            bc = bc_loss_value(pi, expert, keep)
+            loss = loss + bc_weight * bc
+            aux.update(bc_loss=bc, bc_kept=jnp.mean(keep))
+        return loss, aux
 
     return actor_loss
 
@@ -144,8 +171,8 @@ def make_update(
     """``update(state, batch, key) -> (state, metrics)``, one SAC gradient step (pure, jittable)."""
     nets = nets if nets is not None else make_networks(agent, action_dim)
     opt = make_optimizer(sac, total_updates)
-    critic_loss = jax.value_and_grad(make_critic_loss(nets, sac.gamma), has_aux=True)
-    actor_loss = jax.value_and_grad(make_actor_loss(nets), has_aux=True)
+    critic_loss = jax.value_and_grad(make_critic_loss(nets, sac.gamma, sac.target_clip), has_aux=True)
+    actor_loss = jax.value_and_grad(make_actor_loss(nets, sac.bc_weight, sac.q_filter), has_aux=True)
     alpha_grad = jax.value_and_grad(alpha_loss)
     target_entropy = sac.resolved_target_entropy(action_dim)
 
@@ -153,7 +180,8 @@ def make_update(
         updates, opt_state = opt.update(grads, opt_state, params)
         return optax.apply_updates(params, updates), opt_state
 
-    def update(state: SACState, batch: dict, key: jax.Array) -> tuple[SACState, dict]:
+    def update(state: SACState, batch: dict, key: jax.Array, demo: dict | None = None) -> tuple[SACState, dict]:
+        """One update; ``demo`` is a batch of demonstration steps for the behaviour-cloning term."""
         k_next, k_pi = jax.random.split(key)
         alpha = jnp.exp(state.log_alpha)  # this update's coefficient, fixed before the alpha step
 
@@ -162,7 +190,8 @@ def make_update(
         )
         critic_params, critic_opt_state = step(state.critic_params, state.critic_opt_state, c_grads)
 
-        (a_loss, logp), a_grads = actor_loss(state.actor_params, critic_params, alpha, batch, k_pi)
+        (a_loss, a_aux), a_grads = actor_loss(state.actor_params, critic_params, alpha, batch, k_pi, demo)
+        logp = a_aux["logp"]
         actor_params, actor_opt_state = step(state.actor_params, state.actor_opt_state, a_grads)
 
         al_loss, al_grad = alpha_grad(state.log_alpha, logp, target_entropy)
@@ -187,6 +216,7 @@ def make_update(
             "q": c_aux["q"],
             "target_q": c_aux["target_q"],
             "reward": jnp.mean(batch["reward"]),
+            **{k: v for k, v in a_aux.items() if k != "logp"},
         }
         return new_state, metrics
 

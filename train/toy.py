@@ -4,7 +4,8 @@ A point "object" in the plane moves directly with the action: obj_xy += step_siz
 clipped to the box [-bound, bound]^2 (a_s is ignored). The end effector sits on the object. The
 object and goal are observed only through a fixed random linear map into 6 latent dimensions (seeded),
 so, as with the real encoder, the agent must read the goal through a latent code. Start and goal are
-uniform in the box. It exercises the whole SAC + HER pipeline in seconds on a CPU.
+uniform in the box. It exercises the whole SAC + HER pipeline in seconds on a CPU. Its privileged
+state is the object's xy, and its expert steps straight at the goal.
 """
 
 from __future__ import annotations
@@ -50,7 +51,11 @@ def make_toy(
     M = latent_map(seed, bound)
 
     def observe(obj_xy):
-        return {"ee_xy": obj_xy, "z_obj": obj_xy @ M, "obj_xy": obj_xy}
+        return {"ee_xy": obj_xy, "z_obj": obj_xy @ M, "obj_xy": obj_xy, "priv": obj_xy}
+
+    def expert(step_obs, info):
+        a = jnp.clip((info["goal_xy"] - step_obs["priv"]) / step_size, -1.0, 1.0)
+        return jnp.concatenate([a, jnp.ones_like(a[:, :1])], axis=1)
 
     def reset(key, num_envs):
         k_obj, k_goal, k_state = jax.random.split(key, 3)
@@ -81,4 +86,5 @@ def make_toy(
     scheduler = None
     if substep_chunk:
         scheduler = SubstepScheduler(begin, advance, lambda s: s.left == 0, finish, substep_chunk)
-    return EnvAdapter(reset=reset, step=step, success_tau=success_tau, scheduler=scheduler)
+    return EnvAdapter(reset=reset, step=step, success_tau=success_tau, scheduler=scheduler, priv_dim=2,
+                      expert=expert)

@@ -1,0 +1,185 @@
+"""Learner features beyond the reference (train/normalizer.py, the privileged critic, behaviour cloning
+with a Q-filter, target clipping, the success-radius curriculum, demonstrations in replay), each on
+small inputs with known answers, and the whole set learning the toy task."""
+
+import train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from train import normalizer, replay
+from train.config import AgentConfig, DemoConfig, LoopConfig, ReplayConfig, SACConfig, TrainConfig
+from train.loop import Runner, make_train, train as run_train
+from train.networks import make_networks
+from train.sac import bc_loss_value, make_actor_loss, make_critic_loss
+from train.toy import make_toy
+
+T = 6
+
+
+def test_running_stats_merge_batches_exactly():
+    rng = np.random.default_rng(0)
+    a, b = rng.normal(2.0, 3.0, (40, 3)), rng.normal(-1.0, 0.5, (25, 3))
+    s = normalizer.RunningStats.zeros(3)
+    s = s.update(jnp.asarray(a), jnp.ones(40)).update(jnp.asarray(b), jnp.ones(25))
+    both = np.concatenate([a, b])
+    np.testing.assert_allclose(s.mean, both.mean(0), rtol=1e-5)
+    np.testing.assert_allclose(s.std, both.std(0), rtol=1e-5)
+    # Weight-0 samples (steps of invalid episodes) do not count.
+    junk = np.full((10, 3), 1e6)
+    s2 = s.update(jnp.asarray(junk), jnp.zeros(10))
+    np.testing.assert_allclose(s2.mean, s.mean) and np.testing.assert_allclose(s2.std, s.std)
+    assert float(normalizer.RunningStats.zeros(2).std.min()) > 0  # never divides by zero
+
+
+def _episodes(rng, n=3, priv_dim=0):
+    ep = {"z_obj": rng.normal(size=(n, T + 1, 6)), "ee_xy": rng.normal(size=(n, T + 1, 2)),
+          "obj_xy": rng.normal(size=(n, T + 1, 2)), "z_goal": rng.normal(size=(n, 6)),
+          "goal_xy": rng.normal(size=(n, 2)), "action": rng.uniform(-1, 1, (n, T, 3)),
+          "valid": np.ones(n, bool), "demo": np.array([True] + [False] * (n - 1))}
+    if priv_dim:
+        ep["priv"] = rng.normal(size=(n, T + 1, priv_dim))
+    return {k: jnp.asarray(v, jnp.float32 if v.dtype != bool else bool) for k, v in ep.items()}
+
+
+@pytest.mark.parametrize("kind", ["vpm", "ugru"])
+def test_normalised_networks_equal_the_plain_ones_on_standardised_inputs(kind):
+    """An actor with obs_norm and statistics (mean, std) computes what the same weights compute without
+    normalisation on clip((x - mean) / std); written statistics reach the actor, critics and targets."""
+    rng = np.random.default_rng(1)
+    ep = _episodes(rng, priv_dim=4)
+    ep = {**ep, "ee_xy": ep["ee_xy"] * 0.1 + 0.4, "z_obj": ep["z_obj"] * 3.0 - 1.0}
+    plain = make_networks(AgentConfig(kind))
+    normed = make_networks(AgentConfig(kind, obs_norm=True, norm_clip=2.0))
+    actor, critic = normed.init(jax.random.PRNGKey(0), T)
+    stats = normalizer.update_stats(normalizer.init_stats("actor", 0), ep, "actor")
+    actor = normalizer.write(actor, stats)
+    critic = normalizer.write(critic, stats)
+    assert critic["norm"]["norm"]["z_mean"].shape == (2, 6)  # both twins carry the statistics
+    np.testing.assert_allclose(critic["norm"]["norm"]["z_std"][1], stats["z"].std, rtol=1e-6)
+
+    def standard(x, g):
+        return jnp.clip((x - stats[g].mean) / stats[g].std, -2.0, 2.0)
+
+    idx = jnp.array([[0, 3]] * 3, jnp.int32)
+    noise = jnp.zeros((3, 2, 3))
+    a_norm, _ = normed.policy(actor, ep, idx, noise)
+    manual = {**ep, "ee_xy": standard(ep["ee_xy"], "ee_xy"), "z_obj": standard(ep["z_obj"], "z"),
+              "z_goal": standard(ep["z_goal"], "z")}
+    a_plain, _ = plain.policy({"params": actor["params"]}, manual, idx, noise)
+    np.testing.assert_allclose(a_norm, a_plain, atol=1e-6)
+    assert not np.allclose(a_norm, plain.policy({"params": actor["params"]}, ep, idx, noise)[0], atol=1e-3)
+
+
+def test_privileged_critic_reads_ground_truth_and_goal_not_latents():
+    rng = np.random.default_rng(2)
+    ep = _episodes(rng, priv_dim=5)
+    nets = make_networks(AgentConfig("egru", critic_obs="privileged", critic_layer_norm=True,
+                                     critic_hidden=(32, 32)), priv_dim=5)
+    _, critic = nets.init(jax.random.PRNGKey(0), T)
+    assert "features" not in critic["params"]  # an MLP over the state: no recurrent extractor
+    assert critic["params"]["mlp"]["LayerNorm_0"]["scale"].shape == (2, 32)
+    idx = jnp.array([[1], [2], [3]], jnp.int32)
+    act = jnp.zeros((3, 1, 3))
+    q = nets.q(critic, ep, idx, act)
+    assert q.shape == (2, 3, 1)
+    np.testing.assert_allclose(nets.q(critic, {**ep, "z_obj": ep["z_obj"] + 5.0}, idx, act), q)  # latents unused
+    assert not np.allclose(nets.q(critic, {**ep, "goal_xy": ep["goal_xy"] + 0.1}, idx, act), q)
+    with pytest.raises(ValueError, match="privileged.*priv_dim"):
+        make_networks(AgentConfig("vpm", critic_obs="privileged")).init(jax.random.PRNGKey(0), T)
+
+
+class LinearNets:
+    """Stub networks: deterministic action = a per-step constant, Q = -|action - target|^2."""
+
+    action_dim = 2
+
+    def deterministic_action(self, params, episode, idx):
+        return jnp.broadcast_to(params["a"], idx.shape + (2,))
+
+    def policy(self, params, episode, idx, noise):
+        return self.deterministic_action(params, episode, idx), jnp.zeros(idx.shape)
+
+    def q(self, params, episode, idx, action):
+        v = -jnp.sum((action - episode["target"][:, None]) ** 2, -1)
+        return jnp.stack([v, v])
+
+
+def test_behaviour_cloning_is_q_filtered():
+    demo = {"t": jnp.zeros(2, jnp.int32), "action": jnp.array([[1.0, 0.0], [0.0, 0.0]]),
+            "target": jnp.array([[1.0, 0.0], [1.0, 0.0]])}  # expert right on sample 0, wrong on sample 1
+    batch = {"t": jnp.zeros(2, jnp.int32), "target": demo["target"]}
+    params = {"a": jnp.array([0.5, 0.0])}
+    loss_fn = make_actor_loss(LinearNets(), bc_weight=2.0, q_filter=True)
+    (_, aux), _ = jax.value_and_grad(loss_fn, has_aux=True)(params, None, 0.0, batch, jax.random.PRNGKey(0), demo)
+    # Only sample 0 passes the filter: Q(expert) = 0 > Q(actor) = -0.25; sample 1: -1 < -0.25.
+    np.testing.assert_allclose(aux["bc_kept"], 0.5)
+    np.testing.assert_allclose(aux["bc_loss"], 0.25 / 2)
+    unfiltered = make_actor_loss(LinearNets(), bc_weight=2.0, q_filter=False)
+    (_, aux), _ = jax.value_and_grad(unfiltered, has_aux=True)(params, None, 0.0, batch, jax.random.PRNGKey(0), demo)
+    np.testing.assert_allclose(aux["bc_loss"], (0.25 + 0.25) / 2)
+    np.testing.assert_allclose(bc_loss_value(jnp.zeros((2, 2)), jnp.ones((2, 2)), jnp.array([1.0, 0.0])), 1.0)
+
+
+def test_target_clip_bounds_the_td_target():
+    class Big(LinearNets):
+        def q(self, params, episode, idx, action):
+            return jnp.full((2,) + idx.shape, 100.0)
+
+    batch = {"t": jnp.zeros(2, jnp.int32), "reward": jnp.array([-1.0, 0.0]), "action": jnp.zeros((2, 2)),
+             "target": jnp.zeros((2, 2))}
+    params = {"a": jnp.zeros(2)}
+    _, aux = make_critic_loss(Big(), 0.9, target_clip=True)(None, None, params, 0.0, batch, jax.random.PRNGKey(0))
+    np.testing.assert_allclose(aux["target_q"], 0.0)  # 0.9 * 100 - 1 clipped to the return's maximum, 0
+    _, aux = make_critic_loss(Big(), 0.9, target_clip=False)(None, None, params, 0.0, batch, jax.random.PRNGKey(0))
+    np.testing.assert_allclose(aux["target_q"], 89.5)
+
+
+def test_demo_batches_come_from_demonstrations_unrelabelled_and_the_radius_is_an_input():
+    cfg = ReplayConfig(capacity_transitions=10 * T, her_k=4, success_tau=0.01)
+    buf = replay.init(cfg, T, priv_dim=3)
+    ep = _episodes(np.random.default_rng(3), n=4, priv_dim=3)
+    buf = replay.add(buf, ep)
+    assert int(replay.num_demo_episodes(buf)) == 1
+    d = replay.sample(buf, jax.random.PRNGKey(0), 64, demos_only=True, relabel=False)
+    assert set(np.asarray(d["episode"])) == {0} and not np.any(d["relabelled"])
+    assert d["priv"].shape == (64, T + 1, 3)
+    # The reward radius: ground-truth distances are O(1) here, so 10 m counts every step as success.
+    wide = replay.sample(buf, jax.random.PRNGKey(1), 64, success_tau=10.0)
+    assert np.all(wide["reward"] == 0.0)
+    assert np.mean(replay.sample(buf, jax.random.PRNGKey(1), 64)["reward"]) < -0.5
+
+
+TAU = 0.025
+
+
+def _toy_cfg(**over):
+    loop = dict(num_envs=8, episode_len=10, total_env_steps=1280, warmup_env_steps=160, utd=1.0,
+                eval_every_env_steps=640, eval_episodes=100, seed=0)
+    return TrainConfig(
+        agent=AgentConfig("vpm", obs_norm=True, critic_obs="privileged", critic_layer_norm=True),
+        sac=SACConfig(batch_size=128, init_alpha=0.05, target_clip=True, bc_weight=1.0, bc_batch_size=64),
+        replay=ReplayConfig(capacity_transitions=20_000, success_tau=TAU, curriculum_tau=0.05,
+                            curriculum_env_steps=400),
+        loop=LoopConfig(**loop), demo=DemoConfig(warmup=True, fraction=0.25, noise=0.1), **over)
+
+
+def test_expert_share_of_each_batch():
+    runner = Runner(make_train(_toy_cfg(), make_toy(success_tau=TAU)))
+    assert runner.expert_envs(0).all()  # demonstrations instead of random warm-up actions
+    assert runner.expert_envs(160).tolist() == [True, True] + [False] * 6  # 25 % of 8 after it
+
+
+def test_every_feature_together_learns_the_toy_task():
+    cfg = _toy_cfg()
+    adapter = make_toy(success_tau=TAU)
+    state, history = run_train(jax.random.PRNGKey(0), cfg, adapter)
+    assert history[0]["replay/demo_episodes"] == 8 and history[-1]["replay/demo_episodes"] >= 8 + 2 * 14
+    taus = [h["replay/reward_tau"] for h in history]
+    assert taus[1] > taus[-1] == pytest.approx(TAU)  # the curriculum ends at the task's radius
+    assert history[-1]["eval/success_rate"] >= 0.9
+    assert float(state.norm_stats["ee_xy"].count) == 8 * 11 * len(history)  # every stored step counted
+    norm = state.sac.actor_params["norm"]["norm"]
+    np.testing.assert_allclose(norm["ee_xy_mean"], state.norm_stats["ee_xy"].mean)
