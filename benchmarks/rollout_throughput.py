@@ -4,7 +4,7 @@
         [--agent vpm] [--out outputs/bench_rollout.json]
 
 For each environment count and scheduler chunk (0 = lockstep: every env step waits for the slowest
-environment's a_s substeps) it compiles the training rollout of the paper preset (one full 50-step
+environment's a_s substeps) it compiles the training rollout of the cpu preset (one full 50-step
 episode per environment, uniform random actions as in the warm-up, and the untrained policy's
 stochastic actions), then times `--repeats` rollouts. Prints a table and writes JSON.
 """
@@ -31,7 +31,7 @@ from train.push_task import make_push_adapter
 
 
 def measure(num_envs: int, chunk: int, repeats: int, agent: str) -> list[dict]:
-    cfg = presets.make(agent, "paper", 0)
+    cfg = presets.make(agent, "cpu", 0)
     loop = dataclasses.replace(cfg.train.loop, num_envs=num_envs)
     trainer = make_train(dataclasses.replace(cfg.train, loop=loop),
                          make_push_adapter(cfg.env, enc.load(None), substep_chunk=chunk))

@@ -10,6 +10,7 @@ z_obj = encoder mean of the object mask; z_goal = encoder mean of the goal mask,
 (recomputed if the goal mask changes; a recurrent agent's memory is not rewound then, so start a new
 episode for a new goal); the extractor's memory is carried step to step (VPM: none; Stacked: the last
 `stack` observations, zeros before the first; GRU: the hidden state, zero at reset); action = tanh(mean).
+A policy trained with input normalisation standardises ee_xy and both latents first (clipped).
 Everything runs in float32 like the trained networks.
 
 Latency: the encoder's convolutions dominate. By default they run in einsum's single-threaded loops
@@ -82,6 +83,9 @@ class NumpyPolicy:
         self._mean_head = (w["actor/mean_head/kernel"], w["actor/mean_head/bias"])
         self._log_std_head = (w["actor/log_std_head/kernel"], w["actor/log_std_head/bias"])
         self._gru = {name: w[name].copy() for name in w if name.startswith("actor/features/cell/")}
+        norm = meta["agent"].get("obs_norm")
+        self._norm = None if not norm else (F32(norm["clip"]), {
+            g: (w[f"actor/norm/{g}_mean"], w[f"actor/norm/{g}_std"]) for g in ("ee_xy", "z")})
         self.reset()
 
     @classmethod
@@ -152,6 +156,10 @@ class NumpyPolicy:
         latent = self.obs_dim // 2 - 1
         if z_obj.shape != (latent,) or z_goal.shape != (latent,):
             raise ValueError(f"z_obj and z_goal must have shape ({latent},), got {z_obj.shape} and {z_goal.shape}")
+        if self._norm is not None:
+            clip, stats = self._norm
+            norm = lambda g, x: np.clip((x - stats[g][0]) / stats[g][1], -clip, clip)  # noqa: E731
+            ee_xy, z_obj, z_goal = norm("ee_xy", ee_xy), norm("z", z_obj), norm("z", z_goal)
         h = self._features(ee_xy, z_obj, z_goal)
         for kernel, bias in self._mlp:
             h = np.maximum(h @ kernel + bias, F32(0))

@@ -9,6 +9,9 @@ Arrays, named by their flax parameter paths (kernels are flax layouts: Dense (in
 - "actor/mlp/Dense_{i}/{kernel,bias}", "actor/mean_head/{kernel,bias}", "actor/log_std_head/{kernel,bias}";
 - GRU agents also "actor/features/cell/{ir,iz,in}/{kernel,bias}", "actor/features/cell/{hr,hz}/kernel",
   "actor/features/cell/hn/{kernel,bias}" (flax GRUCell; the equations are in the metadata).
+- agents trained with input normalisation (metadata ``agent.obs_norm`` = {"clip": c}) also
+  "actor/norm/{ee_xy,z}_{mean,std}": the actor first maps ee_xy to clip((ee_xy - mean) / std, -c, c), and
+  z_obj and z_goal alike with the z statistics.
 - "__metadata__": the UTF-8 bytes (uint8) of the JSON record: format and version, agent, observation
   layout, action mapping, camera and mask convention, encoder architecture and record, package version,
   training scores and the full run configuration.
@@ -121,6 +124,10 @@ def _expected_shapes(meta: dict) -> dict[str, tuple[int, ...]]:
         for g in GRU_GATES_H:
             shapes[f"actor/features/cell/{g}/kernel"] = (h, h)
         shapes["actor/features/cell/hn/bias"] = (h,)
+    if agent.get("obs_norm"):
+        for group, dim in (("ee_xy", 2), ("z", latent)):
+            for what in ("mean", "std"):
+                shapes[f"actor/norm/{group}_{what}"] = (dim,)
     width = feature_dim(meta)
     for i, h in enumerate(agent["hidden"]):
         h = _pos_int(f"agent.hidden[{i}]", h)
@@ -169,6 +176,11 @@ def load_npz(path: Path | str) -> PolicyFile:
             raise ValueError(f"policy file {path}: array {name!r} has dtype {a.dtype}, expected float32")
         if not np.all(np.isfinite(a)):
             raise ValueError(f"policy file {path}: array {name!r} holds non-finite values")
+        if name.startswith("actor/norm/") and name.endswith("_std") and not np.all(a > 0):
+            raise ValueError(f"policy file {path}: normalisation {name!r} must be positive")
+    clip = (meta["agent"].get("obs_norm") or {}).get("clip", 1.0)
+    if not (isinstance(clip, (int, float)) and math.isfinite(clip) and clip > 0):
+        raise ValueError(f"policy file {path}: metadata field agent.obs_norm.clip must be a positive number, got {clip!r}")
     return PolicyFile(path, meta, arrays)
 
 
@@ -247,7 +259,8 @@ def build_metadata(policy) -> dict:
         "package_version": pkg_version,
         "agent": {"kind": agent.kind, "hidden": list(agent.hidden), "gru_hidden": agent.gru_hidden,
                   "stack": agent.stack, "mlp_activation": "relu", "log_std_clip": [LOG_STD_MIN, LOG_STD_MAX],
-                  "gru_equations": GRU_EQUATIONS if agent.recurrent else None},
+                  "gru_equations": GRU_EQUATIONS if agent.recurrent else None,
+                  "obs_norm": {"clip": agent.norm_clip} if agent.obs_norm else None},
         "observation": {
             "obs_dim": OBS_DIM,
             "per_step": {"ee_xy": 2, "z_obj": enc.LATENT_DIM, "z_goal": enc.LATENT_DIM},
@@ -260,6 +273,9 @@ def build_metadata(policy) -> dict:
             "obs_noise_std": env.obs_noise,
             "z_obj": "encoder mean of the current object mask",
             "z_goal": "encoder mean of the goal mask (constant over an episode)",
+            "normalisation": ("before the feature extractor: ee_xy -> clip((ee_xy - actor/norm/ee_xy_mean) / "
+                              "actor/norm/ee_xy_std, -clip, clip), z_obj and z_goal likewise with actor/norm/z_*"
+                              if agent.obs_norm else None),
         },
         "action": {
             "dim": ACTION_DIM,
@@ -277,6 +293,8 @@ def build_metadata(policy) -> dict:
             "substeps_formula": SUBSTEPS_FORMULA,
             "substep_seconds": 0.001,
             "sanitize": "non-finite components become 0, the rest are clipped to [-1, 1]",
+            "controller_gain": env.controller.gain,
+            "controller": "task-space velocity law dq = gain * J^+ e at every 1 ms substep (run_config.env.controller)",
         },
         "camera": {
             "name": "under_table",
@@ -331,7 +349,11 @@ def load_as_policy(path: Path | str):
     encoder = _unflatten(pf.arrays, "encoder")
     dense, latent = pf.metadata["encoder"]["dense"], pf.metadata["encoder"]["latent_dim"]
     encoder["logvar"] = {"kernel": np.zeros((dense, latent), np.float32), "bias": np.zeros(latent, np.float32)}
-    actor = {"params": jax.tree.map(jnp.asarray, _unflatten(pf.arrays, "actor"))}
+    tree = _unflatten(pf.arrays, "actor")
+    norm = tree.pop("norm", None)
+    actor = {"params": jax.tree.map(jnp.asarray, tree)}
+    if norm is not None:
+        actor["norm"] = {"norm": jax.tree.map(jnp.asarray, norm)}
     return Policy(config, actor, jax.tree.map(jnp.asarray, encoder), dict(pf.metadata.get("scores", {})))
 
 
@@ -342,6 +364,8 @@ def export_policy(policy, out: Path | str) -> dict:
         raise ValueError(f"out must be an .npz path, got {out}")
     meta = build_metadata(policy)
     arrays = _flatten(policy.actor_params["params"], "actor")
+    if "norm" in policy.actor_params:
+        arrays.update(_flatten(policy.actor_params["norm"]["norm"], "actor/norm"))
     arrays.update(_flatten({k: v for k, v in policy.encoder_params.items() if k != "logvar"}, "encoder"))
     want = expected_shapes(meta)
     got = {k: v.shape for k, v in arrays.items()}

@@ -74,6 +74,13 @@ def _net_class():
             self.mean_head = self._linear(t, "actor/mean_head")
             self.log_std_head = self._linear(t, "actor/log_std_head")
             self.feature_dim = feature_dim(meta)
+            norm = meta["agent"].get("obs_norm")
+            self.norm_clip = None if not norm else float(norm["clip"])
+            for g in ("ee_xy", "z"):  # identity statistics when the policy was trained without them
+                mean = t(f"actor/norm/{g}_mean") if norm else torch.zeros(2 if g == "ee_xy" else self.obs_dim // 2 - 1)
+                std = t(f"actor/norm/{g}_std") if norm else torch.ones_like(mean)
+                self.register_buffer(f"{g}_mean", mean)
+                self.register_buffer(f"{g}_std", std)
 
         @staticmethod
         def _linear(t, prefix: str) -> nn.Linear:
@@ -98,6 +105,11 @@ def _net_class():
 
         def step(self, carry, ee_xy, z_obj, z_goal):
             """One step for a batch: (deterministic action tanh(mean) [B, 3], new carry)."""
+            if self.norm_clip is not None:
+                c = self.norm_clip
+                ee_xy = torch.clamp((ee_xy - self.ee_xy_mean) / self.ee_xy_std, -c, c)
+                z_obj = torch.clamp((z_obj - self.z_mean) / self.z_std, -c, c)
+                z_goal = torch.clamp((z_goal - self.z_mean) / self.z_std, -c, c)
             if self.kind in ("ugru", "egru"):
                 carry = self.gru(torch.cat([z_obj, z_goal, ee_xy], dim=-1), carry)
                 h = carry

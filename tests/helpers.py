@@ -61,13 +61,13 @@ def tiny_run_config(agent: str, encoder_path: str):
     import dataclasses
 
     from train import presets
-    from train.config import LoopConfig, ReplayConfig, SACConfig
+    from train.config import LoopConfig, ReplayConfig
 
     cfg = presets.make(agent, "smoke")
     env = dataclasses.replace(cfg.env, episode_length=3, substeps=(10, 30))
     t = dataclasses.replace(
         cfg.train,
-        sac=SACConfig(batch_size=4),
+        sac=dataclasses.replace(cfg.train.sac, batch_size=4, bc_batch_size=4),
         replay=ReplayConfig(capacity_transitions=60),
         loop=LoopConfig(num_envs=2, episode_len=3, total_env_steps=12, warmup_env_steps=6, utd=0.5,
                         eval_every_env_steps=6, eval_episodes=2),

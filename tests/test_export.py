@@ -47,14 +47,28 @@ def _randomize_biases(tree, rng: np.random.Generator):
         if getattr(path[-1], "key", None) == "bias" else v, tree)
 
 
+# uGRU as the reference preset trains it (no input normalisation); the others as the measured presets
+# do, with statistics far from (0, 1) so that a reader that skipped or misapplied them would differ.
+PRESET = {"vpm": "smoke", "stacked": "smoke", "ugru": "reference", "egru": "smoke"}
+
+
 def _policy(kind: str, encoder_params, seed: int) -> tuple[Policy, object]:
-    nets = make_networks(AgentConfig(kind))
-    actor, _ = nets.init(jax.random.PRNGKey(seed), 50)
-    actor = _randomize_biases(actor, np.random.default_rng(seed))
+    cfg = make(kind, PRESET[kind])
+    nets = make_networks(cfg.train.agent)
+    actor = nets.init_actor(jax.random.PRNGKey(seed), 50)
+    rng = np.random.default_rng(seed)
+    actor = _randomize_biases(actor, rng)
     head = actor["params"]["mean_head"]
     actor["params"]["mean_head"] = {k: v * HEAD_GAIN for k, v in head.items()}
+    assert ("norm" in actor) == cfg.train.agent.obs_norm
+    if cfg.train.agent.obs_norm:
+        actor["norm"] = {"norm": {
+            "ee_xy_mean": jnp.asarray(scene.home_flange_pos()[:2] + 0.01, jnp.float32),
+            "ee_xy_std": jnp.asarray([0.05, 0.08], jnp.float32),
+            "z_mean": jnp.asarray(rng.normal(size=6), jnp.float32),
+            "z_std": jnp.asarray(rng.uniform(0.2, 3.0, 6), jnp.float32)}}
     scores = {"best_eval_mean_reward": -42.0, "best_eval_success_rate": float("nan")}
-    return Policy(make(kind, "smoke"), actor, encoder_params, scores), nets
+    return Policy(cfg, actor, encoder_params, scores), nets
 
 
 @pytest.fixture(scope="module")
@@ -138,7 +152,7 @@ def test_numpy_and_torch_match_jax_over_an_episode(kind, exported, jax_encode):
     # The flange follows the JAX policy's actions (closed loop, as in an episode), with observation noise.
     # The JAX episode runs first and the others replay its observations: interleaving XLA's and BLAS's
     # thread pools step by step on 2 busy cores slows both by an order of magnitude.
-    cfg, rng = EnvConfig(), np.random.default_rng(1)
+    cfg, rng = policy.config.env, np.random.default_rng(1)
     ee = scene.home_flange_pos()[:2].copy()
     carry = nets.init_carry(1)
     z_goal = jax_encode(policy.encoder_params, goal_mask[None])
@@ -233,9 +247,12 @@ def test_metadata_record(exported):
     assert m["observation"]["flat_order"] == ["ee_xy", "z_obj", "z_goal"]
     assert m["observation"]["gru_input_order"] == ["z_obj", "z_goal", "ee_xy"]
     assert m["observation"]["stack"] == 5
-    cfg = EnvConfig()
+    cfg = exported["egru"][0].config.env
     assert m["action"]["substeps"] == list(cfg.substeps) and m["action"]["action_scale"] == cfg.action_scale
     assert m["action"]["workspace_x"] == list(cfg.workspace_x)
+    assert m["action"]["controller_gain"] == cfg.controller.gain
+    assert m["agent"]["obs_norm"] == {"clip": 5.0} and "actor/norm/z_std" in pf.arrays
+    assert pfile.load_npz(exported["ugru"][2]).metadata["agent"]["obs_norm"] is None  # reference: none
     assert abs(m["action"]["home_flange_z"] - 0.5905) < 1e-3
     assert m["camera"]["image_size"] == 64 and m["camera"]["fovy_deg"] == 65.0
     assert "columns grow with world +x" in m["camera"]["pixel_convention"]

@@ -14,7 +14,7 @@ import pytest
 from mjx_push.env import EnvConfig
 from train import run as run_mod
 from train.cli import main as cli_main
-from train.config import AgentConfig, LoopConfig, ReplayConfig, SACConfig, TrainConfig
+from train.config import AgentConfig, DemoConfig, LoopConfig, ReplayConfig, SACConfig, TrainConfig
 from train.presets import RunConfig
 from train.toy import make_toy
 
@@ -22,9 +22,13 @@ TAU = 0.025
 
 
 def toy_run_config(encoder, kind="ugru", seed=0) -> RunConfig:
+    # The measured presets' learner (normalisation, privileged critic, demonstrations with behaviour
+    # cloning), so checkpoints and saved policies carry everything they add to the state.
     train_cfg = TrainConfig(
-        agent=AgentConfig(kind, hidden=(32, 32), gru_hidden=8),
-        sac=SACConfig(batch_size=16),
+        agent=AgentConfig(kind, hidden=(32, 32), gru_hidden=8, critic_hidden=(32, 32), obs_norm=True,
+                          critic_obs="privileged", critic_layer_norm=True),
+        sac=SACConfig(batch_size=16, bc_weight=1.0, bc_batch_size=8, target_clip=True),
+        demo=DemoConfig(warmup=True, fraction=0.25, noise=0.1),
         replay=ReplayConfig(capacity_transitions=2_000, success_tau=TAU),
         loop=LoopConfig(num_envs=4, episode_len=10, total_env_steps=200, warmup_env_steps=80, utd=0.25,
                         eval_every_env_steps=80, eval_episodes=6, seed=seed),
@@ -84,7 +88,7 @@ def test_run_writes_logs_checkpoints_and_policies(full_run):
 
 def test_resume_refuses_a_different_configuration(full_run, toy):
     cfg, d, _, _ = full_run
-    other = dataclasses.replace(cfg, train=dataclasses.replace(cfg.train, sac=SACConfig(batch_size=16, lr=3e-4)))
+    other = dataclasses.replace(cfg, train=dataclasses.replace(cfg.train, sac=dataclasses.replace(cfg.train.sac, lr=3e-4)))
     with pytest.raises(ValueError, match=r"different configuration: train\.sac\.lr"):
         run_mod.run(other, d, adapter=toy, resume=True)
     # The checkpoint itself also refuses a state of another shape or configuration.
@@ -153,9 +157,9 @@ def test_cli_rejects_bad_settings(capsys):
 def test_success_tau_sets_the_environment_and_the_relabelling_radius():
     from train.cli import Train
 
-    cfg = Train(agent="vpm", preset="paper", success_tau=0.05).config()
+    cfg = Train(agent="vpm", preset="reference", success_tau=0.05).config()
     assert cfg.env.success_tau == cfg.train.replay.success_tau == 0.05
-    assert Train(agent="vpm", preset="paper").config().env.success_tau == 0.01
+    assert Train(agent="vpm", preset="reference").config().env.success_tau == 0.01
 
 
 def test_progress_lines_report_success_reward_and_final_distance():

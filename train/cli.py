@@ -106,12 +106,13 @@ class TrainEncoder:
 class Train:
     """Train a pushing agent (SAC + HER) on the MJX scene: logs, checkpoints, best policy in --run-dir.
 
-    Presets: smoke (a few minutes on 2 CPU cores, proves the pipeline), paper (the reference budget:
-    29,000 env steps, 19,000 updates, batch 256), gpu (2,048 envs, sized for one H100). Any field left
-    unset keeps the preset's value."""
+    Presets: cpu (the default: learns to push in about 20 minutes on 2 CPU cores), cpu-long (about
+    two hours, for 1 cm), smoke (minutes, proves the pipeline), reference (the reference code's one
+    call of its training script: 29,000 env steps with its action box and learner), paper (millions of
+    env steps, sized for one GPU). Any field left unset keeps the preset's value."""
 
     agent: Literal["vpm", "stacked", "ugru", "egru"] = "egru"
-    preset: Literal["smoke", "paper", "gpu"] = "smoke"
+    preset: Literal["cpu", "cpu-long", "smoke", "reference", "paper"] = "cpu"
     seed: int = 0
     run_dir: Path | None = None
     """default: runs/<agent>-<preset>-s<seed>"""
@@ -290,7 +291,7 @@ class Reproduce:
     square cuboid, rectangular cuboid) and write a Markdown report with figures (SPEC section 7).
     Rerunning reuses finished runs and evaluations and resumes interrupted runs."""
 
-    budget: Literal["smoke", "paper", "gpu"] = "smoke"
+    budget: Literal["smoke", "cpu", "cpu-long", "reference", "paper"] = "smoke"
     seeds: int = 1
     out: Path | None = None
     """default: outputs/reproduce-<budget>"""

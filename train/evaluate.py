@@ -25,9 +25,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjx_push import encoder as enc
+from mjx_push import expert as expert_mod
 from mjx_push import objects
 from mjx_push.env import EnvConfig, PushEnv
 from train.networks import make_networks
+from train.presets import RunConfig
 from train.run import Policy
 
 SETTINGS = ("standard", "difficult", "custom")
@@ -50,6 +52,7 @@ class EvalSpec:
     friction: tuple[float, float] | None = None
     min_height: float | None = None
     record: int = 0  # keep the per-step trajectories of the first `record` episodes (for videos)
+    success_tau: float | None = None  # success radius (m) to score at; None: the one the policy trained for
 
     def __post_init__(self):
         if self.setting not in SETTINGS:
@@ -65,6 +68,8 @@ class EvalSpec:
             raise ValueError("mass / friction / min_height ranges need setting 'custom'")
         if not 0 <= self.record <= self.episodes:
             raise ValueError(f"record must be in [0, episodes], got {self.record}")
+        if self.success_tau is not None and not (math.isfinite(self.success_tau) and self.success_tau > 0):
+            raise ValueError(f"success_tau must be a positive number of metres, got {self.success_tau!r}")
 
     def object_config(self, base: objects.ObjectConfig | None = None) -> objects.ObjectConfig:
         """The object distribution; uniform sampling whatever the agent trained on."""
@@ -102,13 +107,28 @@ def _filter(shape: str, geom_type: str) -> str:
     return shape
 
 
-class Evaluator:
-    """Compiled episode runners for one environment config and agent kind; reusable across policies
-    and settings of the same shapes (the objects are inputs, not constants)."""
+@dataclasses.dataclass(frozen=True)
+class ExpertPolicy:
+    """The environment's scripted expert (mjx_push.expert) as something to evaluate: it reads the
+    simulator's ground truth, so it is a baseline, not a deployable policy. ``config`` gives the action
+    box (``config.env``) and the expert's settings (``config.expert``)."""
 
-    def __init__(self, env_config: EnvConfig, agent_config, batch: int):
+    config: RunConfig
+    scores: dict = dataclasses.field(default_factory=dict)
+    actor_params: Any = None
+    encoder_params: Any = None
+
+
+class Evaluator:
+    """Compiled episode runners for one environment config and agent kind (or the scripted expert
+    when ``expert_config`` is given); reusable across policies and settings of the same shapes (the
+    objects are inputs, not constants)."""
+
+    def __init__(self, env_config: EnvConfig, agent_config, batch: int,
+                 expert_config: expert_mod.ExpertConfig | None = None):
         self.env_config = env_config
-        self.nets = make_networks(agent_config)
+        self.expert_config = expert_config
+        self.nets = None if expert_config is not None else make_networks(agent_config)
         self.batch = batch
         self._envs: dict[str, PushEnv] = {}
         self._fns: dict[str, Any] = {}
@@ -124,22 +144,32 @@ class Evaluator:
         if geom_type in self._fns:
             return self._fns[geom_type]
         env, nets, T = self.env(geom_type), self.nets, self.env_config.episode_length
+        expert_cfg = self.expert_config
 
         def run(actor_params, encoder_params, params, keys):
             s = jax.vmap(env.reset_with)(keys, params)
-            z_goal = enc.encode(encoder_params, s.info["goal_mask"])
             qpos0 = s.pipeline_state.qpos
+            if expert_cfg is not None:
+                def policy(s, carry):
+                    gt = expert_mod.ground_truth(s.info, params.size, jnp.full(keys.shape[0], geom_type == "box"))
+                    return jax.vmap(lambda g: expert_mod.act(expert_cfg, env.config, g))(gt), carry
+                carry0 = jnp.zeros((keys.shape[0], 0))
+            else:
+                z_goal = enc.encode(encoder_params, s.info["goal_mask"])
+
+                def policy(s, carry):
+                    obs = {"ee_xy": s.obs["ee_xy"], "z_obj": enc.encode(encoder_params, s.obs["object_mask"]),
+                           "z_goal": z_goal}
+                    return nets.act(actor_params, carry, obs, jax.random.PRNGKey(0), True)
+                carry0 = nets.init_carry(keys.shape[0])
 
             def body(c, _):
                 s, carry = c
-                obs = {"ee_xy": s.obs["ee_xy"], "z_obj": enc.encode(encoder_params, s.obs["object_mask"]),
-                       "z_goal": z_goal}
-                action, carry = nets.act(actor_params, carry, obs, jax.random.PRNGKey(0), True)
+                action, carry = policy(s, carry)
                 s = jax.vmap(env.step)(s, action)
                 return (s, carry), (s.reward, s.pipeline_state.qpos, action, s.info["substeps"])
 
-            (s, _), (rewards, qpos, actions, substeps) = jax.lax.scan(
-                body, (s, nets.init_carry(keys.shape[0])), None, length=T)
+            (s, _), (rewards, qpos, actions, substeps) = jax.lax.scan(body, (s, carry0), None, length=T)
             dist = jnp.linalg.norm(s.info["object_xy"] - s.info["goal_xy"], axis=-1)
             start_dist = jnp.linalg.norm(params.start[:, :2] - params.goal[:, :2], axis=-1)
             invalid = s.info["episode_invalid"]
@@ -151,6 +181,7 @@ class Evaluator:
                 "start_distance": start_dist,
                 "final_distance": jnp.where(invalid, start_dist, dist),
                 "invalid": invalid,
+                "mean_substeps": jnp.mean(substeps.astype(jnp.float32), axis=0),  # simulation cost per step
                 "qpos": jnp.concatenate([qpos0[None], qpos], axis=0).swapaxes(0, 1),  # [B, T+1, nq]
                 "action": actions.swapaxes(0, 1),
                 "substeps": substeps.swapaxes(0, 1),

@@ -1,18 +1,23 @@
-"""Run configurations: the learner's `TrainConfig`, the task's `EnvConfig` and the encoder, with the
-three presets of `mjx-push train --preset`.
+"""Run configurations: the learner's `TrainConfig`, the task's `EnvConfig`, the scripted expert and
+the encoder, with the presets of `mjx-push train --preset`.
 
-* ``smoke``: the whole pipeline (rollouts, warm-up, updates, evaluation, checkpoints, best policy) on
-  2 CPU cores in a few minutes; it proves the plumbing, not the policy.
-* ``paper``: the reference budget of SPEC section 6: 29,000 environment steps, 10,000 random-action
-  steps, one gradient step per environment step (19,000 updates), batch 256, replay 3e5 transitions,
-  evaluation every 5,000 steps on 100 deterministic episodes. The reference ran one environment; we
-  run 10 in parallel with the same totals (the update count per environment step is unchanged), which
-  cuts wall time on CPU but means the policy is refreshed every 500 steps instead of every step.
-* ``gpu``: sized for one H100: 2,048 environments, 3 million environment steps, a lower update-to-data
-  ratio with a larger batch (0.05 updates per environment step at batch 1,024, i.e. ~5 % more samples
-  drawn per step than the paper's 1 x 256).
+* ``smoke``: the whole pipeline (demonstrations, rollouts, updates, evaluation, checkpoints, best
+  policy) on 2 CPU cores in a few minutes; it proves the plumbing, not the policy.
+* ``cpu``: the README's main job: an agent that visibly learns to push on 2 CPU cores in about 20
+  minutes (success within 5 cm; 1 cm needs longer).
+* ``cpu-long``: about two hours on 2 CPU cores, for 1 cm.
+* ``reference``: the paper's reference code, one call of its training script: its action box and
+  learner (no normalisation, symmetric critics, no demonstrations), 29,000 environment steps,
+  10,000 random-action steps, one update per environment step, batch 256. That script resumed and
+  added another 29,000 steps per call; this is not the paper's budget, and nothing learns at it.
+* ``paper``: the budget the evidence asks for (millions of environment steps, as the model the paper
+  builds on and HER pushing in general need), with the ``cpu`` preset's learner, sized for one GPU.
 
-eGRU differs from uGRU only in the environment: the improved force sampling (SPEC section 4).
+The ``cpu``, ``cpu-long`` and ``paper`` presets use the learner settings chosen by measurement
+(`benchmarks/learning_ladder.py`; the README lists them and how each was chosen): a smaller action box
+with a stiffer controller, input normalisation, a privileged LayerNorm critic, expert demonstrations
+with Q-filtered behaviour cloning. eGRU differs from uGRU only in the environment: the improved force
+sampling.
 """
 
 from __future__ import annotations
@@ -21,11 +26,13 @@ import dataclasses
 from typing import Literal
 
 from mjx_push import objects
+from mjx_push.controller import ControllerConfig
 from mjx_push.env import EnvConfig
-from train.config import AGENT_KINDS, AgentConfig, LoopConfig, ReplayConfig, SACConfig, TrainConfig
+from mjx_push.expert import ExpertConfig
+from train.config import AGENT_KINDS, AgentConfig, DemoConfig, LoopConfig, ReplayConfig, SACConfig, TrainConfig
 
-Preset = Literal["smoke", "paper", "gpu"]
-PRESETS: tuple[str, ...] = ("smoke", "paper", "gpu")
+Preset = Literal["smoke", "cpu", "cpu-long", "reference", "paper"]
+PRESETS: tuple[str, ...] = ("smoke", "cpu", "cpu-long", "reference", "paper")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -37,6 +44,7 @@ class RunConfig:
     # Encoder weights to train with (msgpack); None: the shipped pretrained encoder. Saved policies carry
     # the weights themselves, so this is provenance once training is done.
     encoder: str | None = None
+    expert: ExpertConfig = ExpertConfig()  # the scripted expert's settings (demonstrations, baseline)
 
     def __post_init__(self):
         if self.agent not in AGENT_KINDS:
@@ -63,31 +71,56 @@ def env_for(agent: str, objects_cfg: objects.ObjectConfig | None = None, **env_f
     return EnvConfig(objects=dataclasses.replace(objects_cfg, mode=mode), **env_fields)
 
 
-_LOOPS = {
-    # One batch of random-action episodes, 100 updates, one evaluation: two rollouts in all, since on
-    # 2 CPU cores compilation plus each 50-step rollout (~40 s) is the whole cost.
-    "smoke": dict(num_envs=8, total_env_steps=400, warmup_env_steps=400, utd=0.25, eval_every_env_steps=400,
-                  eval_episodes=8),
-    "paper": dict(num_envs=10, total_env_steps=29_000, warmup_env_steps=10_000, utd=1.0,
-                  eval_every_env_steps=5_000, eval_episodes=100),
-    "gpu": dict(num_envs=2048, total_env_steps=3_072_000, warmup_env_steps=102_400, utd=0.05,
-                eval_every_env_steps=204_800, eval_episodes=2048),
+# The action box of the measured presets (EnvConfig's defaults are the paper's: +-1 m offsets, unit
+# gain, 10-600 substeps). With a gain of 20 the flange settles on its target within ~150 substeps,
+# so an action is a displacement of at most 5 cm (as in Fetch and panda-gym) and a_s mostly sets how
+# long the step lasts; the scripted expert reaches 1 cm in 98-100 % of episodes with it at ~75
+# substeps a step, against ~300 for the paper's range (benchmarks/expert.py).
+ACTION_BOX = dict(action_scale=0.05, substeps=(10, 200), controller=ControllerConfig(gain=20.0))
+
+# The learner features every measured preset shares (AgentConfig / SACConfig / DemoConfig fields).
+_AGENT = dict(obs_norm=True, critic_obs="privileged", critic_layer_norm=True, critic_hidden=(256, 256, 256))
+_SAC_FEATURES = dict(init_alpha=0.05, target_clip=True, bc_weight=2.0)
+_DEMO = DemoConfig(warmup=True, fraction=0.25)
+
+_PRESETS = {
+    # One batch of expert demonstrations, 100 updates, one evaluation: two rollouts in all, since on
+    # 2 CPU cores compilation is the whole cost.
+    "smoke": dict(loop=dict(num_envs=8, total_env_steps=800, warmup_env_steps=400, utd=0.25,
+                            eval_every_env_steps=800, eval_episodes=8),
+                  sac=dict(batch_size=64, bc_batch_size=32, **_SAC_FEATURES), replay=50_000, agent=_AGENT,
+                  demo=_DEMO, env=ACTION_BOX),
+    "cpu": dict(loop=dict(num_envs=32, total_env_steps=64_000, warmup_env_steps=4_800, utd=0.25,
+                          eval_every_env_steps=8_000, eval_episodes=100),
+                sac=dict(batch_size=256, **_SAC_FEATURES), replay=300_000, agent=_AGENT, demo=_DEMO,
+                env=ACTION_BOX),
+    "cpu-long": dict(loop=dict(num_envs=32, total_env_steps=384_000, warmup_env_steps=4_800, utd=0.25,
+                               eval_every_env_steps=32_000, eval_episodes=100),
+                     sac=dict(batch_size=256, **_SAC_FEATURES), replay=1_000_000, agent=_AGENT, demo=_DEMO,
+                     env=ACTION_BOX),
+    "reference": dict(loop=dict(num_envs=10, total_env_steps=29_000, warmup_env_steps=10_000, utd=1.0,
+                                eval_every_env_steps=5_000, eval_episodes=100),
+                      sac=dict(batch_size=256), replay=300_000, agent={}, demo=DemoConfig(), env={}),
+    "paper": dict(loop=dict(num_envs=2048, total_env_steps=3_072_000, warmup_env_steps=102_400, utd=0.125,
+                            eval_every_env_steps=204_800, eval_episodes=2048),
+                  sac=dict(batch_size=1024, bc_batch_size=256, **_SAC_FEATURES), replay=3_000_000, agent=_AGENT,
+                  demo=_DEMO, env=ACTION_BOX),
 }
-_SAC = {"smoke": dict(batch_size=64), "paper": dict(batch_size=256), "gpu": dict(batch_size=1024)}
-_REPLAY = {"smoke": 50_000, "paper": 300_000, "gpu": 2_000_000}
 
 
-def make(agent: str, preset: str = "smoke", seed: int = 0) -> RunConfig:
+def make(agent: str, preset: str = "cpu", seed: int = 0) -> RunConfig:
     if preset not in PRESETS:
         raise ValueError(f"preset must be one of {PRESETS}, got {preset!r}")
     if agent not in AGENT_KINDS:
         raise ValueError(f"agent must be one of {AGENT_KINDS}, got {agent!r}")
-    env = env_for(agent)
+    p = _PRESETS[preset]
+    env = env_for(agent, **p["env"])
     train = TrainConfig(
-        agent=AgentConfig(agent),
-        sac=SACConfig(**_SAC[preset]),
-        replay=ReplayConfig(capacity_transitions=_REPLAY[preset], success_tau=env.success_tau),
-        loop=LoopConfig(episode_len=env.episode_length, seed=seed, **_LOOPS[preset]),
+        agent=AgentConfig(agent, **p["agent"]),
+        sac=SACConfig(**p["sac"]),
+        replay=ReplayConfig(capacity_transitions=p["replay"], success_tau=env.success_tau),
+        loop=LoopConfig(episode_len=env.episode_length, seed=seed, **p["loop"]),
+        demo=p["demo"],
     )
     return RunConfig(agent=agent, preset=preset, train=train, env=env)
 
@@ -100,8 +133,8 @@ def override(cfg: RunConfig, **fields) -> RunConfig:
         if value is None:
             continue
         section, name = dotted.split(".")
-        sub = getattr(train, section)
-        if not hasattr(sub, name):
+        sub = getattr(train, section, None)
+        if sub is None or not hasattr(sub, name):
             raise ValueError(f"unknown setting {dotted!r}")
         train = dataclasses.replace(train, **{section: dataclasses.replace(sub, **{name: value})})
     return dataclasses.replace(cfg, train=train)

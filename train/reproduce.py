@@ -30,7 +30,7 @@ from train.report import read_training, write_report
 
 AGENTS = ("vpm", "stacked", "ugru", "egru")
 PAPER_SHAPES = ("cylinder", "square", "rectangular")
-EVAL_EPISODES = {"smoke": 8, "paper": 100, "gpu": 100}
+EVAL_EPISODES = {"smoke": 8, "cpu": 100, "cpu-long": 100, "reference": 100, "paper": 100}
 
 
 def train_or_reuse(cfg: presets.RunConfig, run_dir: Path, log: Callable[[str], None]) -> None:

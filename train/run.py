@@ -161,7 +161,7 @@ def load_policy(path: Path) -> Policy:
     from train.networks import make_networks
 
     nets = make_networks(config.train.agent)
-    actor_t, _ = jax.eval_shape(lambda: nets.init(jax.random.PRNGKey(0), config.train.loop.episode_len))
+    actor_t = jax.eval_shape(lambda: nets.init_actor(jax.random.PRNGKey(0), config.train.loop.episode_len))
     encoder_t = enc._template()
     for name, template in (("actor", actor_t), ("encoder", encoder_t)):
         if name not in blob:
@@ -254,7 +254,7 @@ def run(
         from train.push_task import DEFAULT_SUBSTEP_CHUNK, make_push_adapter
 
         chunk = DEFAULT_SUBSTEP_CHUNK if substep_chunk is None else substep_chunk
-        adapter = make_push_adapter(cfg.env, encoder_params, chunk)
+        adapter = make_push_adapter(cfg.env, encoder_params, chunk, cfg.expert)
     trainer = make_train(cfg.train, adapter)
     runner = Runner(trainer)
     loop = cfg.train.loop
@@ -330,6 +330,9 @@ def latest_state(run_dir: Path, cfg: RunConfig, adapter: EnvAdapter | None = Non
 
 
 def _dummy_adapter(cfg: RunConfig) -> EnvAdapter:
-    # make_train only needs the adapter to build rollouts, which restoring never calls.
-    return EnvAdapter(reset=None, step=None, success_tau=cfg.env.success_tau)
+    # make_train only needs the adapter to build rollouts, which restoring never calls, and the width of
+    # the pushing scene's ground-truth state (the privileged critic's input).
+    from train.push_task import PRIV_DIM
+
+    return EnvAdapter(reset=None, step=None, success_tau=cfg.env.success_tau, priv_dim=PRIV_DIM)
 
