@@ -230,7 +230,7 @@ def test_reproduce_reuses_the_run_and_caches_each_evaluation(tiny_egru_run, eval
     def go():
         lines: list[str] = []
         rep.reproduce("smoke", 1, out, episodes=2, agents=("egru",), shapes=("cylinder",), log=lines.append,
-                      config_hook=lambda _: cfg)
+                      config_hook=lambda _: cfg, expert=False)  # the expert's row: tests/test_expert.py
         summary = json.loads((out / "results.json").read_text())["combined"]["egru"]["cylinder"]
         return "\n".join(lines), summary
 

@@ -484,7 +484,7 @@ class Runner:
 
     def eval_and_select(self, ts: TrainState) -> tuple[TrainState, dict]:
         t0 = time.perf_counter()
-        stats = self.evaluate(ts.sac.actor_params)
+        stats = jax.block_until_ready(self.evaluate(ts.sac.actor_params))
         ts, metrics = self.select(ts, {k: v for k, v in stats.items() if not k.startswith("episode_")})
         return ts, {**metrics, "eval_s": time.perf_counter() - t0}
 

@@ -80,8 +80,8 @@ ACTION_BOX = dict(action_scale=0.05, substeps=(10, 200), controller=ControllerCo
 
 # The learner features every measured preset shares (AgentConfig / SACConfig / DemoConfig fields).
 _AGENT = dict(obs_norm=True, critic_obs="privileged", critic_layer_norm=True, critic_hidden=(256, 256, 256))
-_SAC_FEATURES = dict(init_alpha=0.05, target_clip=True, bc_weight=2.0)
-_DEMO = DemoConfig(warmup=True, fraction=0.25)
+_SAC_FEATURES = dict(init_alpha=0.05, target_clip=True, bc_weight=2.0, q_filter=False)
+_DEMO = DemoConfig(warmup=True, fraction=0.25, label_all=True)
 
 _PRESETS = {
     # One batch of expert demonstrations, 100 updates, one evaluation: two rollouts in all, since on

@@ -80,7 +80,10 @@ def make_push_adapter(env_config: EnvConfig, encoder_params, substep_chunk: int 
 
     def batch(n: int) -> PushBatch:
         if n not in batches:
-            batches[n] = PushBatch(env_config, n)
+            # Built on first use, often while a function is being traced: its model and constants must
+            # be concrete arrays, not tracers of that one trace, since later traces reuse the batch.
+            with jax.ensure_compile_time_eval():
+                batches[n] = PushBatch(env_config, n)
         return batches[n]
 
     def is_box(s: BatchState) -> jax.Array:

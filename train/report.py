@@ -18,7 +18,8 @@ from train.loop import improves
 
 LABELS = {"success": "success rate", "reward": "mean episode reward", "overshoot": "overshoot corrections",
           "distance": "distance corrections"}
-AGENT_NAMES = {"vpm": "VPM", "stacked": "Stacked", "ugru": "uGRU", "egru": "eGRU"}
+AGENT_NAMES = {"vpm": "VPM", "stacked": "Stacked", "ugru": "uGRU", "egru": "eGRU",
+               "expert": "scripted expert (ground truth)"}
 SHAPE_NAMES = {"cylinder": "cylinder", "square": "square cuboid", "rectangular": "rectangular cuboid",
                "all": "all shapes", "cuboid": "cuboid"}
 

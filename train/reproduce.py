@@ -25,7 +25,7 @@ import numpy as np
 
 from train import presets
 from train import run as run_mod
-from train.evaluate import DISTANCE_METRICS, METRICS, EvalSpec, evaluator_for, summarize
+from train.evaluate import DISTANCE_METRICS, METRICS, EvalSpec, ExpertPolicy, evaluate, evaluator_for, summarize
 from train.report import read_training, write_report
 
 AGENTS = ("vpm", "stacked", "ugru", "egru")
@@ -97,6 +97,34 @@ def evaluate_run(cfg: presets.RunConfig, run_dir: Path, spec: EvalSpec, log: Cal
     return res["summary"]
 
 
+def expert_job(budget: str, out: Path, episodes: int, shapes: tuple[str, ...], setting: str,
+               log: Callable[[str], None] = print) -> dict[str, dict]:
+    """The scripted expert under the budget's action box, per shape: the baseline row of the report
+    (it reads the simulator's ground truth, so it bounds what the task allows, not what a policy
+    sees). Cached in OUT/expert/ like the agents' evaluations, keyed by the spec and the settings."""
+    cfg = presets.make("vpm", budget)
+    key = {"env": run_mod.config_dict(cfg)["env"], "expert": run_mod.config_dict(cfg)["expert"]}
+    summaries = {}
+    for shape in shapes:
+        spec = EvalSpec(setting=setting, shape=shape, episodes=episodes, batch=min(episodes, 20))
+        path = Path(out) / "expert" / f"eval-{spec.setting}-{spec.shape}-{spec.episodes}.json"
+        want = {"spec": json.loads(json.dumps(dataclasses.asdict(spec))), "settings": key}
+        cached = json.loads(path.read_text()) if path.is_file() else {}
+        if {k: cached.get(k) for k in want} == want:
+            log(f"reusing evaluation {path}")
+            summaries[shape] = summarize({k: np.asarray(v) for k, v in cached["per_episode"].items()})
+            continue
+        res = evaluate(ExpertPolicy(cfg), spec)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(json.dumps({**want, "summary": res["summary"], "per_episode": {
+            k: np.asarray(v).tolist() for k, v in res["per_episode"].items()}}) + "\n")
+        tmp.replace(path)
+        summaries[shape] = res["summary"]
+        log(f"expert {shape}: success {summaries[shape]['success']['mean']:.2f}")
+    return summaries
+
+
 def agent_job(
     budget: str,
     agent: str,
@@ -160,10 +188,11 @@ def reproduce(
     log: Callable[[str], None] = print,
     config_hook: Callable[[presets.RunConfig], presets.RunConfig] | None = None,
     jobs: int = 1,
+    expert: bool = True,
 ) -> Path:
     """Train + evaluate every agent for `seeds` seeds (`jobs` of them at a time, in worker processes
-    when > 1); returns the report's path. `config_hook` lets tests shrink the runs (it must be
-    picklable when jobs > 1)."""
+    when > 1), and the scripted expert as a baseline row (``expert``); returns the report's path.
+    `config_hook` lets tests shrink the runs (it must be picklable when jobs > 1)."""
     if seeds < 1:
         raise ValueError(f"seeds must be >= 1, got {seeds}")
     for a in agents:
@@ -185,11 +214,13 @@ def reproduce(
     for (agent, _), per_shape in zip(items, summaries):
         for shape in shapes:
             results[agent][shape].append(per_shape[shape])
+    if expert:
+        results["expert"] = {s: [v] for s, v in expert_job(budget, out, episodes, shapes, setting, log).items()}
     meta = {"budget": budget, "seeds": seeds, "jobs": jobs, "episodes": episodes, "setting": setting, "agents": list(results),
             "shapes": list(shapes), "wall_s": time.perf_counter() - t0,
             "machine": f"{platform.machine()}, {__import__('os').cpu_count()} CPU cores, "
                        f"jax backend {__import__('jax').default_backend()}"}
-    runs = {a: [out / "runs" / f"{a}-s{seed}" for seed in range(seeds)] for a in results}
+    runs = {a: [out / "runs" / f"{a}-s{seed}" for seed in range(seeds)] for a in results if a in AGENTS}
     path = write_report(out, results, meta, runs)
     (out / "reproduce.json").write_text(json.dumps(meta, indent=2) + "\n")
     return path

@@ -1,0 +1,69 @@
+"""The scripted expert (mjx_push/expert.py): its geometry and action inversion on known values, its
+success on evaluation episodes, and its baseline row in `mjx-push reproduce`."""
+
+import train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
+
+import math
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from mjx_push import expert
+from mjx_push.env import EnvConfig, decode_substeps
+from train import presets
+from train.evaluate import EvalSpec, ExpertPolicy, evaluate
+
+
+def test_support_and_bounding_radius():
+    size = jnp.array([0.04, 0.02, 0.03])  # box half extents
+    assert float(expert.support(size, True, 0.0, jnp.array([1.0, 0.0]))) == pytest.approx(0.04)
+    assert float(expert.support(size, True, math.pi / 2, jnp.array([1.0, 0.0]))) == pytest.approx(0.02, abs=1e-6)
+    diag = jnp.array([1.0, 1.0]) / math.sqrt(2)
+    assert float(expert.support(size, True, 0.0, diag)) == pytest.approx(0.06 / math.sqrt(2))
+    assert float(expert.support(jnp.array([0.05, 0.02, 0.0]), False, 1.0, diag)) == pytest.approx(0.05)
+    assert float(expert.bounding_radius(size, True)) == pytest.approx(math.hypot(0.04, 0.02))
+
+
+def test_displacement_action_inverts_the_step_response():
+    cfg, env = expert.ExpertConfig(), presets.ACTION_BOX
+    env = EnvConfig(**env)
+    a = expert.displacement_action(cfg, env, jnp.array([0.01, -0.02]), short=jnp.asarray(False))
+    n = int(decode_substeps(a[2], env.substeps))
+    k = cfg.response_rate * env.controller.gain
+    frac = 1 - math.exp(-k * (n - cfg.dead_substeps))
+    # The step settles to `settle` of its offset (rounded up to whole substeps) and covers the displacement.
+    assert frac >= cfg.settle - 1e-3 and frac < cfg.settle + 0.02
+    np.testing.assert_allclose(np.asarray(a[:2]) * env.action_scale * frac, [0.01, -0.02], rtol=1e-3)
+    hold = expert.displacement_action(cfg, env, jnp.zeros(2), short=jnp.asarray(True))
+    assert int(decode_substeps(hold[2], env.substeps)) == env.substeps[0] and np.all(hold[:2] == 0)
+    big = expert.displacement_action(cfg, env, jnp.array([1.0, 0.0]), short=jnp.asarray(False))
+    assert float(big[0]) == 1.0  # clipped to the action box
+    with pytest.raises(ValueError, match="expert.settle"):
+        expert.ExpertConfig(settle=1.0)
+
+
+@pytest.fixture(scope="module")
+def expert_policy():
+    return ExpertPolicy(presets.make("vpm", "cpu"))
+
+
+def test_expert_pushes_to_within_1_cm(expert_policy):
+    res = evaluate(expert_policy, EvalSpec(setting="standard", shape="all", episodes=4, batch=4))
+    per = res["per_episode"]
+    assert res["invalid_episodes"] == 0
+    np.testing.assert_array_less(per["final_distance"], 0.01)  # every episode within the paper's 1 cm
+    assert np.all(per["start_distance"] > 0.03) and res["summary"]["success"]["mean"] == 1.0
+
+
+def test_reproduce_has_an_expert_baseline_row(expert_policy, tmp_path):
+    from train.reproduce import expert_job
+
+    lines = []
+    first = expert_job("cpu", tmp_path, 4, ("cylinder",), "standard", log=lines.append)
+    again = expert_job("cpu", tmp_path, 4, ("cylinder",), "standard", log=lines.append)
+    assert first["cylinder"]["success"]["mean"] >= 0.75
+    assert any("reusing evaluation" in line for line in lines)
+    for metric, v in first["cylinder"].items():
+        assert again["cylinder"][metric]["mean"] == pytest.approx(v["mean"], rel=1e-6), metric
+    assert (tmp_path / "expert" / "eval-standard-cylinder-4.json").is_file()
