@@ -203,6 +203,7 @@ class CpuPushEnv:
         self.mask_source_used = self._resolve_mask_source(mask_source, geom_type or shapes[0])
         self.geom_type: str | None = None  # set by reset
         self.params: objects.ObjectParams | None = None
+        self._warned_clip = False
 
     # --- public API ----------------------------------------------------------------------------------
     def reset(self, seed: int | None = None, params: objects.ObjectParams | None = None,
@@ -246,13 +247,19 @@ class CpuPushEnv:
 
     def step(self, action) -> tuple[dict, float, bool, bool, dict]:
         """One environment step: `action` (3,) = (a_x, a_y, a_s) in [-1, 1]. Non-finite components become 0
-        and are counted in info["bad_actions"]; values outside [-1, 1] are clipped; a wrong shape raises
-        ValueError. Returns (obs, reward, terminated=False, truncated, info)."""
+        and are counted in info["bad_actions"]; values outside [-1, 1] are clipped (with a warning, once
+        per environment); a wrong shape raises ValueError. Returns (obs, reward, terminated=False, truncated, info)."""
         if self.params is None:
             raise RuntimeError("call reset() before step()")
         action = np.asarray(action, dtype=np.float64)
         if action.shape != (3,):
             raise ValueError(f"action must have shape (3,) = (a_x, a_y, a_s), got {action.shape}")
+        if not self._warned_clip and np.any(np.abs(action[np.isfinite(action)]) > 1.0 + 1e-6):
+            # Clipping silently hid a common mistake: a decoded substep count (NumpyPolicy.act) passed as a_s.
+            self._warned_clip = True
+            warnings.warn(f"action {action.tolist()} lies outside [-1, 1] and is clipped (warned once per "
+                          "environment); a_s is the raw action in [-1, 1], not a substep count: pass "
+                          "NumpyPolicy.act_raw's output, not act's", UserWarning, stacklevel=2)
         action, bad = sanitize_action(action)
         self.bad_actions += int(bad)
         cfg = self.config

@@ -105,7 +105,6 @@ class MjxPushGymEnv(gymnasium.Env):
         self.render_mode = render_mode
         self.render_camera = render_camera
         self._encode = _encoder(str(encoder) if encoder is not None else None) if observation == "latent" else None
-        self._warned_clip = False
         if observation == "latent":
             low = np.concatenate([np.full(2, -EE_BOUND), np.full(LATENT_DIM, -LATENT_BOUND)]).astype(np.float32)
             high = -low
@@ -138,12 +137,6 @@ class MjxPushGymEnv(gymnasium.Env):
         return out, self._info(self.sim.info(), out)
 
     def step(self, action):
-        a = np.asarray(action, dtype=np.float64)
-        if a.shape == (3,) and not self._warned_clip and np.any(np.abs(a[np.isfinite(a)]) > 1.0 + 1e-6):
-            # Silent clipping hid a common mistake: passing a decoded substep count (NumpyPolicy.act) as a_s.
-            self._warned_clip = True
-            gymnasium.logger.warn(f"action {a.tolist()} lies outside [-1, 1] and is clipped (warned once); a_s is "
-                                  "the raw action in [-1, 1], not a substep count: NumpyPolicy.act_raw gives it")
         obs, _, terminated, truncated, info = self.sim.step(action)
         out = self._obs(obs)
         info = self._info(info, out)
