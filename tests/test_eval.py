@@ -274,7 +274,7 @@ def test_reproduce_reuses_the_run_and_caches_each_evaluation(tiny_egru_run, eval
     assert (out / "learning_curves.png").stat().st_size > 10_000
 
     log, again = go()
-    assert "reusing evaluation" in log and again == first
+    assert "reusing evaluation" in log and again == first, (again, first)
 
     stale = dict(rec, per_episode={k: v for k, v in rec["per_episode"].items() if k != "start_distance"})
     cache.write_text(json.dumps(stale))  # a cache from before the distances were recorded

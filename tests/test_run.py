@@ -154,6 +154,23 @@ def test_sigint_stops_after_the_batch_with_a_checkpoint_and_resume_continues(ful
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
+def test_train_command_stops_on_signals_and_says_how_to_resume(full_run, monkeypatch, capsys):
+    cfg, d, _, _ = full_run
+    seen = {}
+
+    def interrupted_run(cfg, run_dir, **kwargs):  # what run() returns after a Ctrl-C
+        seen.update(kwargs)
+        return {"stopped_at_env_steps": 120, "interrupted_at_env_steps": 120, "signal": "SIGINT"}, None
+
+    monkeypatch.setattr(run_mod, "run", interrupted_run)
+    monkeypatch.setattr(run_mod, "load_config", lambda path: cfg)
+    monkeypatch.setattr(run_mod, "finished_summary", lambda *a: None)
+    with pytest.raises(SystemExit) as exit_:
+        cli_main(["train", "--resume", "--run-dir", str(d)])
+    assert exit_.value.code == 130 and seen["stop_on_signal"] is True
+    assert f"mjx-push train --resume --run-dir {d}" in capsys.readouterr().out
+
+
 def test_a_second_signal_interrupts_at_once():
     from train.interrupt import StopOnSignal
 

@@ -208,13 +208,15 @@ class Train:
         try:
             with TrainProgress(console, loop, enabled=self.progress) as bar, flag_errors(self._flag_names()):
                 summary, _ = run_mod.run(cfg, run_dir, resume=self.resume, checkpoint_every=self.checkpoint_every,
-                                         on_iteration=bar.update, substep_chunk=self.substep_chunk)
+                                         on_iteration=bar.update, substep_chunk=self.substep_chunk,
+                                         stop_on_signal=True)
         except run_mod.RunFinished as done:
             console.print(f"{done} Nothing was changed.", soft_wrap=True)
             return
         if "interrupted_at_env_steps" in summary:
             console.print(f"[yellow]interrupted[/] ({summary['signal']}) at {summary['interrupted_at_env_steps']:,} "
-                          f"env steps; checkpoint written. Continue with: mjx-push train --resume --run-dir {run_dir}")
+                          f"env steps; checkpoint written. Continue with: mjx-push train --resume --run-dir {run_dir}",
+                          soft_wrap=True)
             raise SystemExit(130)
         console.print(f"best evaluation: mean reward {summary['best_eval_mean_reward']:.2f}, success "
                       f"{summary['best_eval_success_rate']:.0%} at {summary['best_env_steps']:,} env steps")

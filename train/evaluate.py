@@ -112,8 +112,10 @@ def summarize(per_episode: dict) -> dict:
     """{metric: {"mean", "sem", "n"}} over per-episode arrays: the paper's METRICS, and the
     DISTANCE_METRICS present."""
     keys = METRICS + tuple(k for k in DISTANCE_METRICS if k in per_episode)
-    return {k: {"mean": float(np.mean(per_episode[k])), "sem": sem(per_episode[k]), "n": int(len(per_episode[k]))}
-            for k in keys}
+    # float64 whatever the input: a fresh evaluation (float32 arrays) and one read back from JSON (Python
+    # floats) of the same episodes must give the same summary.
+    return {k: {"mean": float(np.mean(np.asarray(per_episode[k], np.float64))), "sem": sem(per_episode[k]),
+                "n": int(len(per_episode[k]))} for k in keys}
 
 
 def episode_geom_type(shape: str, i: int) -> str:

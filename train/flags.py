@@ -20,4 +20,4 @@ def flag_errors(names: dict[str, str]):
             msg = re.sub(rf"(?<![\w.-])(?:train\.|env\.)?{re.escape(field)}(?!\w)", names[field], msg)
         if msg == str(e):
             raise
-        raise ValueError(msg) from None
+        raise type(e)(msg) from None

@@ -36,6 +36,7 @@ from flax import serialization
 from mjx_push import encoder as enc
 from train import atomic, configio
 from train.interrupt import StopOnSignal
+from train.run_lock import RunLock
 from train.loop import EnvAdapter, Runner, TrainState, make_train
 from train.loop import train as train_loop
 from train.presets import RunConfig
@@ -283,8 +284,6 @@ def run(
     batch with a checkpoint (`train.interrupt`); the summary then holds "interrupted_at_env_steps" and
     "signal". One process at a time may run in a directory (`train.run_lock`); resuming a finished run
     raises `RunFinished` and changes nothing. Returns (summary, final state)."""
-    from train.run_lock import RunLock
-
     run_dir = Path(run_dir)
     if resume:
         done = finished_summary(run_dir, cfg)
