@@ -15,7 +15,8 @@ object per environment forever; brax's SAC also rejects dict observations.
   paper's 14 numbers with the mask encoder run on device; "state" [flange xy, object xy, cos/sin object
   yaw, goal xy, cos/sin goal yaw] (10, ground truth); "mask" [flange xy, object mask, goal mask] (8194);
 - time limits belong to the wrapper: `done` is never set at the end of an episode, so `EpisodeWrapper`
-  marks it as a truncation (PPO bootstraps through it, SAC leaves it out of the critic's loss). Pass
+  marks it as a truncation (PPO and SAC leave the step out of their value targets), and
+  `info["time_out"]` marks it for PPO's `bootstrap_on_timeout=True`. Pass
   `episode_length=env.episode_length` (50) to brax's `train`. `done` = 1, a termination, only when the
   simulation breaks (NaN, object through or off the table), so that episode ends at once;
 - the whole episode (the inner `PushEnv` state with its object, goal and counters) is the
@@ -28,12 +29,17 @@ object per environment forever; brax's SAC also rejects dict observations.
 
 One `BraxPushEnv` simulates one object shape ("box" or "cylinder"): MJX fixes a geom's type when the
 step is compiled, and brax vmaps a single environment.
+
+Compatibility: brax 0.14.2's trainers (PPO, SAC) call `jax.device_put_replicated`, which jax 0.10
+removed (it raises AttributeError there). Importing this module puts back an equivalent built on the
+public `jax.device_put` (the replacement jax's pmap migration guide gives), only if jax lacks one.
 """
 
 from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from brax.envs.base import Env, State
 
 from mjx_push import encoder as enc
@@ -43,6 +49,17 @@ from mjx_push.env import EnvConfig, PushEnv
 OBSERVATIONS = ("latent", "state", "mask")
 REWARDS = ("sparse", "dense")
 _NEXT_EPISODE = 0x7E5E7  # folded into the environment's key to draw the episode staged for auto-reset
+
+
+def _device_put_replicated(x, devices):
+    """`x` (a pytree) stacked once per device along a new leading axis, one slice on each device."""
+    mesh = jax.sharding.Mesh(np.array(devices), ("devices",))
+    sharding = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("devices"))
+    return jax.device_put(jax.tree.map(lambda a: jnp.stack([jnp.asarray(a)] * len(devices)), x), sharding)
+
+
+if not hasattr(jax, "device_put_replicated"):  # jax >= 0.10: brax's trainers still call it
+    jax.device_put_replicated = _device_put_replicated
 
 
 class BraxPushEnv(Env):
@@ -79,19 +96,24 @@ class BraxPushEnv(Env):
         inner = self._start(rng)
         zero = jnp.zeros((), jnp.float32)
         return State(pipeline_state=inner, obs=self._obs(inner), reward=zero, done=zero,
-                     metrics=self._metrics(inner), info={})
+                     metrics=self._metrics(inner), info={"time_out": zero})
 
     def step(self, state: State, action: jax.Array) -> State:
         prev = state.pipeline_state
         inner = self.env.step(prev, action)
         broken = inner.info["invalid_count"] > prev.info["invalid_count"]
         info = dict(state.info)
+        # brax's PPO with bootstrap_on_timeout reads it: the episode's time limit (this environment's
+        # episode_length, which brax's episode_length must equal) ends it, not a termination.
+        info["time_out"] = ((inner.info["step"] >= self.episode_length) & ~broken).astype(jnp.float32)
         if "first_pipeline_state" in info:  # under brax's AutoResetWrapper: stage the next episode
             fresh = self._start(jax.random.fold_in(inner.info["rng"], _NEXT_EPISODE))
             info["first_pipeline_state"] = fresh
             info["first_obs"] = self._obs(fresh)
+        metrics = dict(state.metrics)  # keeps what wrappers added (brax's EvalWrapper: "reward")
+        metrics.update(self._metrics(inner))
         return state.replace(pipeline_state=inner, obs=self._obs(inner), reward=self._reward(inner),
-                             done=broken.astype(jnp.float32), metrics=self._metrics(inner), info=info)
+                             done=broken.astype(jnp.float32), metrics=metrics, info=info)
 
     # --- helpers -------------------------------------------------------------------------------------
     def _start(self, rng: jax.Array) -> State:

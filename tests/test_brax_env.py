@@ -23,8 +23,9 @@ def wrapped():
     cfg = EnvConfig()
     lo = cfg.substeps[0]
     # Short steps: this is about episode bookkeeping, not pushing.
-    env = BraxPushEnv(dataclasses.replace(cfg, substeps=(lo, lo + 10)), "box", observation="state")
-    w = brax_training.wrap(env, episode_length=L)
+    env = BraxPushEnv(dataclasses.replace(cfg, substeps=(lo, lo + 10), episode_length=L), "box",
+                      observation="state")
+    w = brax_training.wrap(env, episode_length=env.episode_length)
     return env, jax.jit(w.reset), jax.jit(w.step)
 
 
@@ -38,12 +39,13 @@ def test_episodes_truncate_and_restart_with_fresh_objects(wrapped):
     assert s.obs.shape == (N, env.observation_size) == (N, 10)
     starts = [np.asarray(s.pipeline_state.info["params"].start)]
     key = jax.random.PRNGKey(1)
-    dones, truncations = [], []
+    dones, truncations, time_outs = [], [], []
     for i in range(3 * L):
         key, k = jax.random.split(key)
         s = step(s, _random_actions(k))
         dones.append(np.asarray(s.done))
         truncations.append(np.asarray(s.info["truncation"]))
+        time_outs.append(np.asarray(s.info["time_out"]))
         inner = s.pipeline_state.info
         if (i + 1) % L == 0:  # restarted: a new episode with its own object and counters at zero
             starts.append(np.asarray(s.pipeline_state.info["params"].start))
@@ -57,6 +59,7 @@ def test_episodes_truncate_and_restart_with_fresh_objects(wrapped):
     ends = np.array([[float((i + 1) % L == 0)] * N for i in range(3 * L)])
     np.testing.assert_array_equal(np.stack(dones), ends)  # only at the time limit (not every step after)
     np.testing.assert_array_equal(np.stack(truncations), ends)  # and as truncations, not terminations
+    np.testing.assert_array_equal(np.stack(time_outs), ends)  # what PPO's bootstrap_on_timeout reads
     starts = np.concatenate(starts)  # 4 episodes x N environments
     assert len({tuple(np.round(x, 6)) for x in starts}) == len(starts)  # every episode a new object
     assert np.isfinite(np.asarray(s.obs)).all()
@@ -72,6 +75,7 @@ def test_a_broken_simulation_terminates_its_episode(wrapped):
     s = step(s, jnp.zeros((N, 3)))
     np.testing.assert_array_equal(np.asarray(s.done), [1.0, 0.0])  # a termination, before the time limit
     np.testing.assert_array_equal(np.asarray(s.info["truncation"]), [0.0, 0.0])
+    np.testing.assert_array_equal(np.asarray(s.info["time_out"]), [0.0, 0.0])
     np.testing.assert_array_equal(np.asarray(s.pipeline_state.info["step"]), [0, 2])  # env 0 restarted
     assert not bool(s.pipeline_state.info["episode_invalid"][0])
     assert np.isfinite(np.asarray(s.obs)).all() and np.isfinite(np.asarray(s.pipeline_state.pipeline_state.qpos)).all()
@@ -90,9 +94,27 @@ def test_flat_observation_modes():
         BraxPushEnv(reward="shaped")
 
 
+def test_brax_evaluation_wrapper_accepts_the_environment():
+    # brax's trainers evaluate through EvalWrapper, which adds metrics of its own (traced, not compiled).
+    env = BraxPushEnv(EnvConfig(), "box", observation="state")
+    w = brax_training.EvalWrapper(brax_training.wrap(env, episode_length=L))
+    state = jax.eval_shape(w.reset, jax.random.split(jax.random.PRNGKey(0), N))
+    after = jax.eval_shape(w.step, state, jnp.zeros((N, 3)))
+    assert set(after.metrics) == {"success", "distance", "reward"} and after.obs.shape == (N, 10)
+
+
 def test_push_env_under_brax_wrappers_is_refused_with_a_pointer():
     w = brax_training.wrap(PushEnv(EnvConfig(), "box"), episode_length=L)
     keys = jax.random.split(jax.random.PRNGKey(0), N)
     state = jax.eval_shape(w.reset, keys)
     with pytest.raises(ValueError, match="BraxPushEnv"):
         jax.eval_shape(w.step, state, jnp.zeros((N, 3)))
+
+
+def test_brax_trainers_find_device_put_replicated():
+    # brax 0.14.2's PPO and SAC call jax.device_put_replicated, which jax 0.10 removed; importing
+    # mjx_push.brax_env restores an equivalent (the brax benchmark runs the trainers themselves).
+    devices = jax.local_devices()[:1]
+    out = jax.device_put_replicated({"w": jnp.arange(3.0)}, devices)
+    assert out["w"].shape == (1, 3)
+    np.testing.assert_array_equal(np.asarray(out["w"][0]), [0.0, 1.0, 2.0])
