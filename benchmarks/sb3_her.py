@@ -107,12 +107,12 @@ def main() -> None:
     console.print(f"SB3 training: {model.num_timesteps:,} env steps in {train_s:.0f} s "
                   f"({model.num_timesteps / train_s:.1f} env steps/s incl. updates)")
     if jax_curve is not None:
-        jt = Table(title=f"mjx-push JAX learner: {args.jax_run} (its own evaluations)")
+        jt = Table(title=f"mjx-push JAX learner, {args.jax_run} ({jax_curve['env_steps']:,} env steps)")
         for col in ("env steps", "success", "mean reward", "final dist (cm)"):
             jt.add_column(col, justify="right")
-        for s, r, w, d in zip(jax_curve["eval_env_steps"], jax_curve["eval_success"], jax_curve["eval_reward"],
-                              jax_curve["eval_final_distance"]):
-            jt.add_row(f"{s:,}", f"{w:.0%}", f"{r:.1f}", f"{100 * d:.1f}")
+        for steps, success, reward, dist in zip(jax_curve["eval_env_steps"], jax_curve["eval_success"],
+                                                jax_curve["eval_reward"], jax_curve["eval_final_distance"]):
+            jt.add_row(f"{steps:,}", f"{success:.0%}", f"{reward:.1f}", f"{100 * dist:.1f}")
         console.print(jt)
         console.print(f"JAX training: {jax_curve['env_steps']:,} env steps, {jax_curve['updates']:,} updates in "
                       f"{jax_curve['wall_s']:.0f} s")

@@ -194,6 +194,11 @@ class Train:
                 raise ValueError(f"--resume: no run directory {run_dir}" + ("" if self.run_dir else
                                  " (the default for these --agent/--preset/--seed; pass --run-dir)"))
             cfg = run_mod.load_config(run_dir / "config.json")
+            try:
+                run_mod.check_not_finished(run_dir, cfg)
+            except run_mod.RunFinished as done:
+                console.print(f"{done} Nothing was changed.", soft_wrap=True)
+                return
             if self._overrides():
                 raise ValueError("--resume continues the saved configuration; drop the other settings "
                                  f"({', '.join('--' + n.replace('_', '-') for n in self._overrides())})")
@@ -203,7 +208,7 @@ class Train:
         console.print(f"[bold]mjx-push train[/] {cfg.agent} ({cfg.preset}): {loop.num_envs} envs, "
                       f"{loop.total_env_steps:,} env steps, {loop.warmup_env_steps:,} warm-up, "
                       f"{loop.updates_per_iteration} updates per batch of {loop.env_steps_per_iteration} steps; "
-                      f"run dir {run_dir}")
+                      f"run dir {run_dir}", soft_wrap=True)
         console.print("  the first batch includes JIT compilation (minutes on CPU)")
         try:
             with TrainProgress(console, loop, enabled=self.progress) as bar, flag_errors(self._flag_names()):

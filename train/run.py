@@ -264,6 +264,15 @@ def finished_summary(run_dir: Path, cfg: RunConfig) -> dict | None:
         return None
 
 
+def check_not_finished(run_dir: Path, cfg: RunConfig) -> None:
+    """Raise RunFinished if `run_dir`'s run of `cfg` has finished (before anything is opened or written)."""
+    done = finished_summary(run_dir, cfg)
+    if done is not None:
+        _check_same_config(run_dir, cfg)  # a different configuration is the more useful message
+        raise RunFinished(f"{run_dir} has finished ({done.get('env_steps', '?')} env steps, summary.json): "
+                          "--resume has nothing to continue; train longer in a new --run-dir.")
+
+
 def run(
     cfg: RunConfig,
     run_dir: Path,
@@ -286,11 +295,7 @@ def run(
     raises `RunFinished` and changes nothing. Returns (summary, final state)."""
     run_dir = Path(run_dir)
     if resume:
-        done = finished_summary(run_dir, cfg)
-        if done is not None:
-            _check_same_config(run_dir, cfg)  # a different configuration is the more useful message
-            raise RunFinished(f"{run_dir} has finished ({done.get('env_steps', '?')} env steps, summary.json): "
-                              "--resume has nothing to continue; train longer in a new --run-dir.")
+        check_not_finished(run_dir, cfg)
         if not run_dir.is_dir():
             raise ValueError(f"--resume: no checkpoint in {run_dir / 'checkpoints'} ({run_dir} does not exist)")
     else:
