@@ -1,4 +1,4 @@
-"""NumPy port of `mjx_push.corrections` (SPEC section 7): the same counters, one substep at a time.
+"""NumPy port of `mjx_push.corrections` (docs/task.md section 7): the same counters, one substep at a time.
 
 overshoot: d_{k-1} < tau and d_k >= tau and |d_k - tau| > eps; distance: a flag is set when
 d_k > d_{k-1} + eps, and while it is set d_k < d_{k-1} - eps counts one correction and clears it.

@@ -23,8 +23,8 @@ Gymnasium users (`export.gym_env`) and as the simulated robot behind the deploym
 Masks (`mask_source`):
 - "render": the "under_table" camera rendered by `mujoco.Renderer` at 64x64, colour-filtered with
   `render_filter` (the object's emissive blue: B > 128, R < 80, G < 80; nothing else in the scene is
-  blue, the glass table is invisible and the arm is grey). Needs an OpenGL context: set MUJOCO_GL=egl
-  (before mujoco is imported) on a machine without a display.
+  blue, the glass table is invisible and the arm is grey). Needs an OpenGL context: on a Linux machine
+  without a display, `import export` (or `import mjx_push`) selects EGL before mujoco is imported.
 - "analytic": `export.masks_np`, the NumPy port of `mjx_push.masks` (no renderer, no JAX).
 - "auto" (default): "render" if a renderer can be created, else "analytic" (see `mask_source_used`).
 
@@ -48,6 +48,7 @@ from export import corrections_np as corr
 from export import masks_np
 from mjx_push import objects, scene
 from mjx_push.env import EnvConfig
+from mjx_push.renderer import new_renderer, renderer_available, unavailable_reason  # noqa: F401
 
 MASK_SOURCES = ("render", "analytic", "auto")
 CAMERAS = ("under_table", "top")
@@ -60,29 +61,8 @@ _UNSTABLE_WARNINGS = (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN
                       mujoco.mjtWarning.mjWARN_BADQACC)
 
 
-# The first failure to create a renderer is remembered for the whole process: after one failed attempt
-# (e.g. MUJOCO_GL=glfw without a display) MuJoCo 4.0 aborts the interpreter on the next one.
-_render_failure: str | None = None
-
-
-def _new_renderer(m: mujoco.MjModel, h: int, w: int) -> mujoco.Renderer:
-    global _render_failure
-    if _render_failure is not None:
-        raise RuntimeError(f"MuJoCo renderer unavailable in this process ({_render_failure})")
-    try:
-        return mujoco.Renderer(m, h, w)
-    except Exception as e:
-        _render_failure = f"{type(e).__name__}: {e}"
-        raise
-
-
-def renderer_available() -> bool:
-    """Whether `mujoco.Renderer` works in this process (tries at most once after a failure)."""
-    try:
-        _new_renderer(scene.build_model("box"), 8, 8).close()
-    except Exception:
-        return False
-    return True
+# One place creates renderers and remembers a failure for the process (MuJoCo aborts on a second try).
+_new_renderer = new_renderer
 
 
 def render_filter(rgb: np.ndarray) -> np.ndarray:
@@ -223,6 +203,7 @@ class CpuPushEnv:
         self.mask_source_used = self._resolve_mask_source(mask_source, geom_type or shapes[0])
         self.geom_type: str | None = None  # set by reset
         self.params: objects.ObjectParams | None = None
+        self._warned_clip = False
 
     # --- public API ----------------------------------------------------------------------------------
     def reset(self, seed: int | None = None, params: objects.ObjectParams | None = None,
@@ -266,13 +247,19 @@ class CpuPushEnv:
 
     def step(self, action) -> tuple[dict, float, bool, bool, dict]:
         """One environment step: `action` (3,) = (a_x, a_y, a_s) in [-1, 1]. Non-finite components become 0
-        and are counted in info["bad_actions"]; values outside [-1, 1] are clipped; a wrong shape raises
-        ValueError. Returns (obs, reward, terminated=False, truncated, info)."""
+        and are counted in info["bad_actions"]; values outside [-1, 1] are clipped (with a warning, once
+        per environment); a wrong shape raises ValueError. Returns (obs, reward, terminated=False, truncated, info)."""
         if self.params is None:
             raise RuntimeError("call reset() before step()")
         action = np.asarray(action, dtype=np.float64)
         if action.shape != (3,):
             raise ValueError(f"action must have shape (3,) = (a_x, a_y, a_s), got {action.shape}")
+        if not self._warned_clip and np.any(np.abs(action[np.isfinite(action)]) > 1.0 + 1e-6):
+            # Clipping silently hid a common mistake: a decoded substep count (NumpyPolicy.act) passed as a_s.
+            self._warned_clip = True
+            warnings.warn(f"action {action.tolist()} lies outside [-1, 1] and is clipped (warned once per "
+                          "environment); a_s is the raw action in [-1, 1], not a substep count: pass "
+                          "NumpyPolicy.act_raw's output, not act's", UserWarning, stacklevel=2)
         action, bad = sanitize_action(action)
         self.bad_actions += int(bad)
         cfg = self.config
@@ -392,11 +379,10 @@ class CpuPushEnv:
             self._renderer(probe_shape, scene.IMAGE_SIZE, scene.IMAGE_SIZE)
         except Exception as e:  # no OpenGL context (no EGL/OSMesa/display)
             if source == "render":
-                raise RuntimeError(f"mask_source='render' needs MuJoCo's offscreen renderer, which failed "
-                                   f"({type(e).__name__}: {e}); set MUJOCO_GL=egl before importing mujoco, "
-                                   "or use mask_source='analytic'") from e
-            warnings.warn(f"MuJoCo renderer unavailable ({type(e).__name__}: {e}); using analytic masks",
-                          RuntimeWarning, stacklevel=3)
+                raise RuntimeError(f"mask_source='render' needs {unavailable_reason()}; or pass "
+                                   "mask_source='analytic' (the masks MJX trains with)") from e
+            warnings.warn(f"mask_source='auto': {unavailable_reason()}; using analytic masks instead of the "
+                          "rendered camera", RuntimeWarning, stacklevel=3)
             return "analytic"
         return "render"
 

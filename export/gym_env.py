@@ -1,82 +1,128 @@
 """Gymnasium goal environment over `export.cpu_env.CpuPushEnv`, registered as "MjxPush-v0".
 
-    import export.gym_env, gymnasium
-    env = gymnasium.make("MjxPush-v0", geom_type="box", mask_source="analytic")
+    import export, gymnasium                # importing export registers the id
+    env = gymnasium.make("MjxPush-v0")      # or gymnasium.make("export:MjxPush-v0") without the import
 
-Observation layout (a flat `Dict`, which Stable-Baselines3's `MultiInputPolicy` and HER accept; SB3 does
-not support nested Dicts):
-- "observation": Box(float32, (2 + 64*64,)): the noisy flange xy in metres, then the object mask
-  flattened row-major as 0.0 / 1.0 (`split_observation` undoes it);
-- "achieved_goal": Box(uint8, (64*64,)) in {0, 1}: the object mask, flattened row-major;
-- "desired_goal": Box(uint8, (64*64,)) in {0, 1}: the goal mask (the object at the goal pose).
-Masks follow `mjx_push.masks`' pixel convention. Action space: Box(-1, 1, (3,), float32) =
-(a_x, a_y, a_s), exactly as the MJX environment; non-finite components become 0 (counted in
-info["bad_actions"]), a wrong shape raises ValueError.
+Goal representation (the goal-environment convention of Gymnasium-Robotics and Stable-Baselines3):
+- "achieved_goal": Box(float32, (2,)): the object's centre xy in metres (ground truth);
+- "desired_goal": Box(float32, (2,)): the goal's centre xy in metres;
+- "observation": what the robot sees, by `observation`:
+  - "latent" (default): Box(float32, (8,)) = [flange xy (noisy), z_obj], z_obj the 6-number encoder
+    latent of the object mask (the shipped encoder, or `encoder=PATH`);
+  - "mask": Box(float32, (2 + 64*64,)) = [flange xy, the object mask flattened row-major as 0.0 / 1.0]
+    (`split_observation` undoes it).
 
-Rewards come from ground truth, never from the masks (as in the reference): -1 while the object's centre
-is at least tau = 0.01 from the goal's, else 0. `compute_reward` therefore reads the positions from
-`info` ("object_xy", "goal_xy"), for one transition or a batch (an array or list of info dicts, as SB3's
-HER passes them, or one dict of stacked arrays). A learner that relabels goals must relabel
-info["goal_xy"] with the chosen future step's info["object_xy"] as well (SPEC section 6): SB3's stock
-`HerReplayBuffer` replaces only desired_goal and passes the transition's own info, so with it the
-relabelled rewards would still refer to the original goal.
+Why the goals are positions: the task's reward is a function of the true object and goal positions
+(-1 while they are at least tau = 0.01 apart, else 0), and hindsight relabelling (SB3's
+`HerReplayBuffer`) replaces only `desired_goal` and recomputes the reward as
+`compute_reward(achieved_goal, desired_goal, info)` with an empty info by default. So the reward must be
+a function of the two goal entries alone, and those must hold the positions: masks or latents locate
+the object only to about a pixel (1 cm), the size of the success radius itself. The goal image is not
+part of "observation" either, since a relabelled transition would keep the old goal there. The cost:
+an SB3 policy, which reads every key, sees the true object and goal positions, information the paper's
+vision agents (and mjx-push's JAX learner, which relabels the latent and the true goal together) do
+not get.
 
-Episodes are exactly `EnvConfig.episode_length` (50) steps: `truncated` at the end, never `terminated`.
+Action space: Box(-1, 1, (3,), float32) = (a_x, a_y, a_s), exactly as the MJX environment (a_s is the
+raw action, not a substep count); non-finite components become 0 (counted in info["bad_actions"]),
+components outside [-1, 1] are clipped with a warning, a wrong shape raises ValueError. Episodes are
+exactly `EnvConfig.episode_length` steps: `truncated` at the end, never `terminated`.
+
+Masks come from the rendered under-table camera by default (`mask_source="render"`, needing MuJoCo's
+offscreen renderer: `import export` selects EGL on a Linux machine without a display); "analytic" uses
+the projection MJX trains with; "auto" renders when it can and warns when it cannot.
+
+`gymnasium.make` returns the environment itself (see `export.register_envs`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
-from typing import Any
+import functools
+from pathlib import Path
 
 import gymnasium
 import numpy as np
 from gymnasium import spaces
 
+from export import ENV_ID
 from export.cpu_env import CAMERAS, MAX_RENDER_SIZE, CpuPushEnv
 from mjx_push import scene
 from mjx_push.env import EnvConfig
 
-ENV_ID = "MjxPush-v0"
 N_PIX = scene.IMAGE_SIZE * scene.IMAGE_SIZE
 EE_BOUND = 1.0  # |flange x|, |flange y| < 1 m: the Panda's reach is 0.855 m
+OBSERVATIONS = ("latent", "mask")
+LATENT_DIM = 6
+# Box bound of the latent entries: the shipped encoder's latents of task masks lie within +-3 (even an
+# all-ones mask gives 11); infinite bounds would make Gymnasium's checker warn.
+LATENT_BOUND = 100.0
 
 
 def split_observation(observation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """"observation" vector(s) (..., 2 + 4096) -> (ee_xy (..., 2), object_mask (..., 64, 64) bool)."""
+    """"mask" observation vector(s) (..., 2 + 4096) -> (ee_xy (..., 2), object_mask (..., 64, 64) bool)."""
     observation = np.asarray(observation)
     n = scene.IMAGE_SIZE
+    if observation.shape[-1] != 2 + N_PIX:
+        raise ValueError(f"expected 'mask' observations of length {2 + N_PIX}, got {observation.shape[-1]}")
     return observation[..., :2], observation[..., 2:].reshape(observation.shape[:-1] + (n, n)) > 0.5
 
 
+@functools.lru_cache(maxsize=4)
+def _encoder(path: str | None):
+    """(jitted encode, params) for the encoder at `path` (None: the shipped one), shared by instances."""
+    import jax
+
+    from mjx_push import encoder as enc
+
+    return jax.jit(enc.encode), enc.load(Path(path) if path else None)
+
+
 class MjxPushGymEnv(gymnasium.Env):
-    """Goal-conditioned Gymnasium view of the CPU MuJoCo pushing task. Keyword arguments go to
-    `CpuPushEnv`; `render_mode="rgb_array"` makes `render()` return the "top" camera at `render_size`."""
+    """Goal-conditioned Gymnasium view of the CPU MuJoCo pushing task. `config`, `geom_type` and
+    `mask_source` go to `CpuPushEnv`; `render_mode="rgb_array"` makes `render()` return `render_camera`
+    at `render_size` (height, width)."""
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
 
-    def __init__(self, config: EnvConfig | None = None, geom_type: str | None = None, mask_source: str = "auto",
-                 render_mode: str | None = None, render_size: tuple[int, int] = (240, 320),
-                 render_camera: str = "top"):
+    def __init__(self, config: EnvConfig | None = None, geom_type: str | None = None, mask_source: str = "render",
+                 observation: str = "latent", encoder: str | Path | None = None, render_mode: str | None = None,
+                 render_size: tuple[int, int] = (240, 320), render_camera: str = "top"):
+        if observation not in OBSERVATIONS:
+            raise ValueError(f"observation must be one of {OBSERVATIONS}, got {observation!r}")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
-        self.sim = CpuPushEnv(config or EnvConfig(), geom_type=geom_type, mask_source=mask_source)
-        self.config = self.sim.config
-        self.render_mode = render_mode
         self.render_size = tuple(render_size)
-        self.render_camera = render_camera
         if not (len(self.render_size) == 2 and 1 <= self.render_size[0] <= MAX_RENDER_SIZE[0]
                 and 1 <= self.render_size[1] <= MAX_RENDER_SIZE[1]):
             raise ValueError(f"render_size must be (height, width) within {MAX_RENDER_SIZE}, got {render_size!r}")
         if render_camera not in CAMERAS:
             raise ValueError(f"render_camera must be one of {CAMERAS}, got {render_camera!r}")
-        low = np.concatenate([np.full(2, -EE_BOUND), np.zeros(N_PIX)]).astype(np.float32)
-        high = np.concatenate([np.full(2, EE_BOUND), np.ones(N_PIX)]).astype(np.float32)
-        goal = spaces.Box(0, 1, (N_PIX,), np.uint8)
+        if encoder is not None and not Path(encoder).is_file():
+            raise ValueError(f"encoder: no such file {encoder}")
+        self.sim = CpuPushEnv(config or EnvConfig(), geom_type=geom_type, mask_source=mask_source)
+        self.config = self.sim.config
+        self.observation_mode = observation
+        self.render_mode = render_mode
+        self.render_camera = render_camera
+        self._encode = _encoder(str(encoder) if encoder is not None else None) if observation == "latent" else None
+        if observation == "latent":
+            low = np.concatenate([np.full(2, -EE_BOUND), np.full(LATENT_DIM, -LATENT_BOUND)]).astype(np.float32)
+            high = -low
+        else:
+            low = np.concatenate([np.full(2, -EE_BOUND), np.zeros(N_PIX)]).astype(np.float32)
+            high = np.concatenate([np.full(2, EE_BOUND), np.ones(N_PIX)]).astype(np.float32)
+        # Goals lie on the table (an object leaving its footprint is an invalid state and is put back).
+        goal = spaces.Box(np.array([scene.TABLE_X[0], scene.TABLE_Y[0]], np.float32),
+                          np.array([scene.TABLE_X[1], scene.TABLE_Y[1]], np.float32), dtype=np.float32)
         self.observation_space = spaces.Dict(
             {"observation": spaces.Box(low, high, dtype=np.float32), "achieved_goal": goal, "desired_goal": goal}
         )
         self.action_space = spaces.Box(-1.0, 1.0, (3,), np.float32)
+
+    @property
+    def mask_source(self) -> str:
+        """The masks in use: "render" or "analytic" ("auto" resolved)."""
+        return self.sim.mask_source_used
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         """`options` may hold "params" (an `ObjectParams`) and "geom_type" to fix the episode's object."""
@@ -87,24 +133,26 @@ class MjxPushGymEnv(gymnasium.Env):
             raise ValueError(f"options accepts 'params' and 'geom_type', got {sorted(unknown)}")
         self.sim.np_random = self.np_random  # one generator: gymnasium's seeding drives every draw
         obs = self.sim.reset(params=options.get("params"), geom_type=options.get("geom_type"))
-        return self._obs(obs), self._info(self.sim.info())
+        out = self._obs(obs)
+        return out, self._info(self.sim.info(), out)
 
     def step(self, action):
         obs, _, terminated, truncated, info = self.sim.step(action)
-        out, info = self._obs(obs), self._info(info)
-        reward = float(self.compute_reward(out["achieved_goal"], out["desired_goal"], info))
-        return out, reward, terminated, truncated, info
+        out = self._obs(obs)
+        info = self._info(info, out)
+        return out, float(self.compute_reward(out["achieved_goal"], out["desired_goal"], info)), terminated, \
+            truncated, info
 
-    def compute_reward(self, achieved_goal, desired_goal, info) -> np.ndarray | float:
-        """Sparse reward from the ground truth carried in `info`: 0 if ||object_xy - goal_xy|| < tau else -1.
-        `info` is one dict (arrays (2,) or stacked (B, 2)) or a sequence / object array of B dicts. The
-        masks only fix the batch shape. Returns float32 of shape achieved_goal.shape[:-1]."""
-        batch_shape = np.shape(achieved_goal)[:-1]
-        obj, goal = _ground_truth(info)
-        if obj.shape[:-1] != batch_shape and obj.shape[:-1] != (int(np.prod(batch_shape)),):
-            raise ValueError(f"info holds {obj.shape[:-1]} transitions but achieved_goal {batch_shape}")
-        dist = np.linalg.norm(obj - goal, axis=-1).reshape(batch_shape)
-        return (dist < self.config.success_tau).astype(np.float32) - 1.0
+    def compute_reward(self, achieved_goal, desired_goal, info=None) -> np.ndarray:
+        """Sparse reward from the goals alone: 0 where ||achieved_goal - desired_goal|| < tau, else -1.
+        Goals are xy positions (..., 2); any leading batch shape; `info` is ignored (may be None, a dict
+        or a list of dicts, as SB3's HER passes it). Returns float32 of the batch shape."""
+        ag = np.asarray(achieved_goal, np.float64)
+        dg = np.asarray(desired_goal, np.float64)
+        if ag.shape[-1:] != (2,) or dg.shape[-1:] != (2,):
+            raise ValueError(f"goals are xy positions of shape (..., 2), got {ag.shape} and {dg.shape}")
+        dist = np.linalg.norm(ag - dg, axis=-1)
+        return (dist < self.config.success_tau).astype(np.float32) - np.float32(1.0)
 
     def render(self):
         if self.render_mode == "rgb_array":
@@ -115,41 +163,25 @@ class MjxPushGymEnv(gymnasium.Env):
         self.sim.close()
 
     # --- helpers -------------------------------------------------------------------------------------
-    @staticmethod
-    def _obs(obs: dict) -> dict:
-        mask = obs["object_mask"].reshape(-1)
+    def _obs(self, obs: dict) -> dict:
+        ee = np.asarray(obs["ee_xy"], np.float32)
+        if self._encode is not None:
+            fn, params = self._encode
+            seen = np.asarray(fn(params, obs["object_mask"]), np.float32)
+        else:
+            seen = obs["object_mask"].reshape(-1).astype(np.float32)
+        info = self.sim.info()
         return {
-            "observation": np.concatenate([obs["ee_xy"], mask]).astype(np.float32),
-            "achieved_goal": mask.astype(np.uint8),
-            "desired_goal": obs["goal_mask"].reshape(-1).astype(np.uint8),
+            "observation": np.concatenate([ee, seen]).astype(np.float32),
+            "achieved_goal": np.asarray(info["object_xy"], np.float32),
+            "desired_goal": np.asarray(info["goal_xy"], np.float32),
         }
 
-    @staticmethod
-    def _info(info: dict) -> dict:
+    def _info(self, info: dict, obs: dict) -> dict:
         info = dict(info)
-        info["is_success"] = bool(info["success"])  # the key SB3's loggers read
+        # The key SB3's loggers read, consistent with the reward (both from the float32 goals).
+        info["is_success"] = bool(self.compute_reward(obs["achieved_goal"], obs["desired_goal"]) == 0.0)
         return info
 
-
-def _ground_truth(info: Any) -> tuple[np.ndarray, np.ndarray]:
-    """(object_xy (..., 2), goal_xy (..., 2)) from one info dict or a sequence of them."""
-    if isinstance(info, Mapping):
-        return np.asarray(info["object_xy"], np.float64), np.asarray(info["goal_xy"], np.float64)
-    if isinstance(info, (Sequence, np.ndarray)):
-        infos = list(np.asarray(info, dtype=object).reshape(-1))
-        if not all(isinstance(i, Mapping) for i in infos):
-            raise ValueError("info must be a dict or a sequence of dicts with 'object_xy' and 'goal_xy'")
-        return (np.stack([np.asarray(i["object_xy"], np.float64) for i in infos]),
-                np.stack([np.asarray(i["goal_xy"], np.float64) for i in infos]))
-    raise ValueError(f"info must be a dict or a sequence of dicts, got {type(info).__name__}")
-
-
-def _register() -> None:
-    # Guarded: importing this module twice (or reloading it) must not re-register the id.
-    if ENV_ID not in gymnasium.registry:
-        gymnasium.register(id=ENV_ID, entry_point="export.gym_env:MjxPushGymEnv")
-
-
-_register()
 
 __all__ = ["ENV_ID", "MjxPushGymEnv", "split_observation"]

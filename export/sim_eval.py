@@ -1,9 +1,11 @@
-"""Run an exported policy in `CpuPushEnv` for the SPEC section 7 protocol (used by `mjx-push deploy`).
+"""Run an exported policy in `CpuPushEnv` for the evaluation protocol (docs/task.md section 7; used by
+`mjx-push deploy`).
 
-Settings: "standard" is Table I (uniform mass and friction, for every agent alike); "difficult" is the
-paper's figure: mass U[0.001, 0.01], sliding friction U[0.2, 0.3], minimum full height 0.052. Episode i
-is seeded with `seed + i`, so every policy meets the same objects. An invalid episode (NaN, object off or
-through the table) counts as a failure with the worst reward, as in training's evaluation.
+Settings, shapes and episodes are those of `mjx-push eval` (`train.evaluate`): episode i's object, start
+and goal come from `train.evaluate.episode_objects(spec, ..., [i])`, so the MJX evaluation and this one
+score a policy on the same episodes; with shape "all" even episodes are cuboids and odd ones cylinders.
+Observation noise is drawn from seed + i. An invalid episode (NaN, object off or through the table)
+counts as a failure with the worst reward, as in training's evaluation.
 """
 
 from __future__ import annotations
@@ -14,28 +16,15 @@ from collections.abc import Callable
 
 import numpy as np
 
-from mjx_push import objects
 from mjx_push.env import EnvConfig
 
-SETTINGS = ("standard", "difficult")
 VIDEO_HEIGHT = 192
 VIDEO_SIZES = {"top": (VIDEO_HEIGHT, 256), "under_table": (VIDEO_HEIGHT, VIDEO_HEIGHT)}
 
 
-def object_config(setting: str, shape: str) -> objects.ObjectConfig:
-    if setting not in SETTINGS:
-        raise ValueError(f"setting must be one of {SETTINGS}, got {setting!r}")
-    if shape not in objects.SHAPE_FILTERS:
-        raise ValueError(f"shape must be one of {objects.SHAPE_FILTERS}, got {shape!r}")
-    from train.evaluate import DIFFICULT  # one definition of the paper's difficult case (MJX and CPU)
-
-    extra = DIFFICULT if setting == "difficult" else {}
-    return objects.ObjectConfig(mode="uniform", shape=shape, **extra)
-
-
-def env_config(metadata: dict, setting: str, shape: str) -> EnvConfig:
+def env_config(metadata: dict, spec) -> EnvConfig:
     """The task the policy was trained on (controller, solver, action mapping from the exported run
-    configuration) with the objects of the evaluation setting."""
+    configuration) with the objects of the evaluation `spec` (a `train.evaluate.EvalSpec`)."""
     from train import configio
 
     try:
@@ -48,7 +37,9 @@ def env_config(metadata: dict, setting: str, shape: str) -> EnvConfig:
         base = EnvConfig(action_scale=a["action_scale"], substeps=tuple(a["substeps"]),
                          workspace_x=tuple(a["workspace_x"]), workspace_y=tuple(a["workspace_y"]),
                          episode_length=task["episode_length"], success_tau=task["success_tau"])
-    return dataclasses.replace(base, objects=object_config(setting, shape))
+    objects_cfg = spec.object_config(base.objects)
+    shape = "any" if spec.shape == "all" else spec.shape
+    return dataclasses.replace(base, objects=dataclasses.replace(objects_cfg, shape=shape))
 
 
 GOAL_TINT = np.array([0, 90, 0], np.uint8)  # goal silhouette drawn faintly green in the under-table view
@@ -65,16 +56,26 @@ def side_by_side(env) -> np.ndarray:
     return np.concatenate([top, under], axis=1)
 
 
-def run_episodes(policy, env, episodes: int, seed: int,
-                 on_frame: Callable[[int, object], None] | None = None) -> list[dict]:
-    """`episodes` deterministic episodes of `policy` (an object with `reset()` and `act_raw(object_mask,
-    goal_mask, ee_xy)`) in `env` (a `CpuPushEnv`). `on_frame(episode, env)` is called after the reset and
-    after every step (for videos). Returns one record per episode."""
-    records = []
+def run_episodes(policy, env, spec, on_frame: Callable[[int, object], None] | None = None) -> list[dict]:
+    """`spec.episodes` deterministic episodes of `policy` (an object with `reset()` and
+    `act_raw(object_mask, goal_mask, ee_xy)`) in `env` (a `CpuPushEnv` built from `env_config`), the
+    episodes of the MJX evaluation with the same `spec`. `on_frame(episode, env)` is called after the
+    reset and after every step (for videos). Returns one record per episode."""
+    from train.evaluate import episode_geom_type, episode_objects
+
     steps = env.config.episode_length
-    for i in range(episodes):
+    geoms = [episode_geom_type(spec.shape, i) for i in range(spec.episodes)]
+    params = {}  # episode -> ObjectParams (NumPy), drawn per geom type in one call
+    for geom in sorted(set(geoms)):
+        idx = np.array([i for i, g in enumerate(geoms) if g == geom])
+        p, _ = episode_objects(spec, env.config.objects, geom, idx)
+        for j, i in enumerate(idx):
+            params[int(i)] = type(p)(**{k: np.asarray(getattr(p, k))[j] for k in p.__dataclass_fields__})
+    records = []
+    for i in range(spec.episodes):
         policy.reset()
-        obs = env.reset(seed=seed + i)
+        obs = env.reset(seed=spec.seed + i, params=params[i], geom_type=geoms[i])
+        start_distance = env.info()["distance"]
         if on_frame is not None:
             on_frame(i, env)
         reward = 0.0
@@ -87,13 +88,14 @@ def run_episodes(policy, env, episodes: int, seed: int,
         valid = not info["episode_invalid"]
         records.append({
             "episode": i,
-            "seed": seed + i,
+            "seed": spec.seed + i,
             "geom_type": info["geom_type"],
             "success": bool(info["success"]) and valid,
             "reward": reward if valid else -float(steps),
             "overshoot": int(info["corrections"].overshoot),
             "distance": int(info["corrections"].distance),
-            "final_distance": float(info["distance"]),
+            "start_distance": float(start_distance),
+            "final_distance": float(info["distance"]) if valid else float(start_distance),
             "valid": valid,
             "bad_actions": int(info["bad_actions"]),
         })

@@ -1,4 +1,4 @@
-"""Task-space velocity controller (SPEC section 3): the real robot's law, jit-compiled.
+"""Task-space velocity controller (docs/task.md section 3): the real robot's law, jit-compiled.
 
 Task error e = [c . z_ee - 1 ; p_d - p_ee] with c = (0, 0, -1): the first row keeps the push rod
 perpendicular to the table, the other three drive the flange to p_d. Jacobian rows c^T [z_ee]x J_rot and
@@ -7,7 +7,7 @@ convention J dq = e asks d(c . z_ee)/dt = 1 - c . z_ee, so both rows converge.
 
 That scalar tilt row ("dot", the paper's and the real robot's law) has a vanishing gradient at the
 upright pose: its restoring rate grows with the cube of the tilt angle, and in simulation long moves let
-the rod drift to 6 degrees (SPEC section 8 asks for 2). The default "axis" law therefore replaces it by
+the rod drift to 6 degrees (docs/task.md section 8 asks for 2). The default "axis" law therefore replaces it by
 two rows linear in the angle: the horizontal components of the angular velocity are asked to equal
 (z_ee x c)_xy, the axis-angle that turns z_ee onto c. Select "dot" to reproduce the reference exactly.
 """

@@ -1,4 +1,4 @@
-"""Correction counters of SPEC section 7, updated at every 1 ms substep on noise-free positions.
+"""Correction counters of docs/task.md section 7, updated at every 1 ms substep on noise-free positions.
 
 With d_k the object-goal distance at substep k, tau the success radius and eps a dead band:
 - overshoot: d_{k-1} < tau and d_k >= tau and |d_k - tau| > eps;

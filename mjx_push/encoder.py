@@ -1,4 +1,4 @@
-"""Vision encoder of the object masks (SPEC section 5): a variational autoencoder whose mean is the
+"""Vision encoder of the object masks (docs/task.md section 5): a variational autoencoder whose mean is the
 6-number latent the agents observe.
 
 Encoder: 4 convolutions (kernel 4, stride 2, no padding; 32, 64, 128, 256 channels, ReLU) take the
@@ -102,7 +102,7 @@ def init_vae(key: jax.Array):
 
 def random_masks(key: jax.Array, n: int, x_range=(-0.25, 0.30), y_range=(-0.30, 0.30)) -> jax.Array:
     """`n` masks [n, 64, 64] of objects with random shape (half boxes, half cylinders), size and height
-    from Table I, yaw in [-pi, pi) and position EE_home + (x, y) from the given ranges (SPEC section 5)."""
+    from Table I, yaw in [-pi, pi) and position EE_home + (x, y) from the given ranges (docs/task.md section 5)."""
     cfg = objects.ObjectConfig()
     home = jnp.asarray(scene.home_flange_pos()[:2], jnp.float32)
     k_shape, k_pose, k_box, k_cyl = jax.random.split(key, 4)

@@ -1,8 +1,10 @@
-"""The pushing task as a functional MJX environment with brax's `Env` interface (SPEC sections 1-4, 8).
+"""The pushing task as a functional MJX environment with brax's `Env` interface (docs/task.md sections 1-4, 8).
 
 One `PushEnv` simulates one environment with an object of one geom type; use it batched with
 `jax.vmap` (or through `mjx_push.batch.PushBatch`, which also mixes shapes). Everything an episode needs
-lives in the `State` pytree, so `reset` and `step` are pure and jittable.
+lives in the `State` pytree, so `reset` and `step` are pure and jittable. For brax's trainers and
+training wrappers use `mjx_push.brax_env.BraxPushEnv`, which wraps it (flat observations, the wrappers'
+time limits and auto-resets).
 
 An environment step is split in three so that a scheduler can interleave environments whose a_s
 differ (see `mjx_push.batch` for the utilisation this costs when they wait for each other):
@@ -28,7 +30,7 @@ from mjx_push import masks, objects, scene
 
 @dataclass(frozen=True)
 class EnvConfig:
-    """Task settings (SPEC section 3). Nested configs hold the object distribution, the controller and
+    """Task settings (docs/task.md section 3). Nested configs hold the object distribution, the controller and
     the MJX solver."""
 
     objects: objects.ObjectConfig = field(default_factory=objects.ObjectConfig)
@@ -162,6 +164,10 @@ class PushEnv(Env):
         return State(data, obs, reward, _F0, metrics, info)
 
     def step(self, state: State, action: jax.Array) -> State:
+        if "first_pipeline_state" in state.info:  # a static check: info's keys are fixed when tracing
+            raise ValueError("PushEnv under brax's AutoResetWrapper would replay one object and end an episode "
+                             "at every step (its episodes live in info, which the wrapper does not reset): "
+                             "give brax's trainers mjx_push.brax_env.BraxPushEnv instead")
         return self.finish_step(self.advance(self.begin_step(state, action)))
 
     # --- the three phases of a step ------------------------------------------------------------------

@@ -1,4 +1,4 @@
-"""Binary object masks from the under-table camera, computed analytically on device (SPEC section 2).
+"""Binary object masks from the under-table camera, computed analytically on device (docs/task.md section 2).
 
 Pixel convention (the same as `mujoco.Renderer.render()` from the camera "under_table"): row 0 is the
 top of the image, column 0 the left; columns grow with world +x and rows with world +y (the camera

@@ -1,4 +1,4 @@
-"""Per-environment object randomisation (SPEC sections 1 and 4) and its application to an MJX model.
+"""Per-environment object randomisation (docs/task.md sections 1 and 4) and its application to an MJX model.
 
 Shape is the one parameter MJX cannot vary per environment (a geom's type is static), so every
 `PushEnv` is specialised to one geom type ("box" or "cylinder") and `mjx_push.batch` splits a batch
@@ -86,7 +86,7 @@ class ObjectConfig:
 
     @property
     def mass_range(self) -> tuple[float, float]:
-        """Range the mass is actually drawn from (improved mode widens it, SPEC section 4)."""
+        """Range the mass is actually drawn from (improved mode widens it, docs/task.md section 4)."""
         if self.mode == "uniform":
             return self.mass
         return (self.mass[0] * self.friction[0] / self.mu_k, self.mass[1] * self.friction[1] / self.mu_k)
@@ -107,7 +107,7 @@ class ObjectParams:
 
 def sample_improved_mass(key: jax.Array, cfg: ObjectConfig, shape=()) -> jax.Array:
     """m = ((F_max - F_min)/mu_k) * ((1-x)(1-y) + x y) + F_min/mu_k, x ~ Exp(scale) clipped to [0, 1],
-    y ~ Bernoulli(0.5) (paper eq. 3, SPEC section 4)."""
+    y ~ Bernoulli(0.5) (paper eq. 3, docs/task.md section 4)."""
     kx, ky = jax.random.split(key)
     f_min = cfg.mass[0] * cfg.friction[0]
     f_max = cfg.mass[1] * cfg.friction[1]

@@ -1,4 +1,4 @@
-"""The pushing scene as MJCF, built in code from primitives (SPEC section 1).
+"""The pushing scene as MJCF, built in code from primitives (docs/task.md section 1).
 
 One builder serves both simulators: `build_xml(shape)` returns the MJCF text, `build_model(shape)`
 the compiled `mujoco.MjModel` (CPU MuJoCo), and `mjx_push.env` puts the same model on device.
@@ -99,7 +99,7 @@ OBJECT_DAMPING = 0.01
 @dataclass(frozen=True)
 class SolverSettings:
     """MJX solver settings. Defaults chosen for speed; `benchmarks/physics_validity.py` and
-    `tests/test_physics.py` check that they keep the scene stable (SPEC section 8)."""
+    `tests/test_physics.py` check that they keep the scene stable (docs/task.md section 8)."""
 
     iterations: int = 6
     ls_iterations: int = 6

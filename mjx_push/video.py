@@ -2,7 +2,8 @@
 
 MJX has no renderer, so an evaluation records each episode's joint positions per environment step and
 this module poses the same scene (one builder serves both simulators) frame by frame. Writing .gif
-needs only imageio (always installed); .mp4 also needs the `imageio-ffmpeg` package.
+needs only imageio (a dependency of the package); .mp4 also needs the `imageio-ffmpeg` package (the
+`mp4` extra). `check_writable` says what is missing before any work is done.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import mujoco
 import numpy as np
 
 from mjx_push import scene
+from mjx_push.renderer import new_renderer
 
 VIEWS = ("top", "under_table")
 
@@ -27,7 +29,7 @@ class EpisodeRenderer:
     def _scene(self, geom_type: str):
         if geom_type not in self._models:
             m = scene.build_model(geom_type)
-            self._models[geom_type] = (m, mujoco.MjData(m), mujoco.Renderer(m, self.height, self.width),
+            self._models[geom_type] = (m, mujoco.MjData(m), new_renderer(m, self.height, self.width),
                                        scene.scene_ids(m))
         return self._models[geom_type]
 
@@ -69,20 +71,37 @@ def _goal_marker(scn, goal: np.ndarray, size: np.ndarray, geom_type: str) -> Non
     scn.ngeom += 1
 
 
-def write(frames: list[np.ndarray], path: Path, fps: int = 5) -> Path:
-    """Write frames to .gif or .mp4 (by suffix). A clear error when the format cannot be written."""
-    import imageio.v2 as imageio
+SUFFIXES = (".gif", ".mp4")
 
+
+def check_writable(path: Path) -> None:
+    """Raise ValueError, saying what to install or change, unless a video can be written to `path`
+    (call it before the work whose frames it will hold)."""
     path = Path(path)
     suffix = path.suffix.lower()
-    if suffix not in (".gif", ".mp4"):
-        raise ValueError(f"video must end in .gif or .mp4, got {path.name!r}")
+    if suffix not in SUFFIXES:
+        raise ValueError(f"{path} must end in .gif or .mp4")
+    try:
+        import imageio.v2  # noqa: F401
+    except ImportError:
+        raise ValueError("writing videos needs the imageio package: pip install imageio") from None
     if suffix == ".mp4":
         try:
             import imageio_ffmpeg  # noqa: F401
         except ImportError:
-            raise ValueError("writing .mp4 needs the imageio-ffmpeg package (pip install imageio-ffmpeg); "
-                             "or ask for a .gif") from None
+            raise ValueError(f"writing {path.name} (.mp4) needs imageio-ffmpeg: pip install 'mjx-push[mp4]' "
+                             f"(or pip install imageio-ffmpeg), or write a GIF: {path.with_suffix('.gif')}") from None
+    if path.is_dir():
+        raise ValueError(f"{path} is a directory, not a video file")
+
+
+def write(frames: list[np.ndarray], path: Path, fps: int = 5) -> Path:
+    """Write frames to .gif or .mp4 (by suffix). A clear error when the format cannot be written."""
+    check_writable(path)
+    import imageio.v2 as imageio
+
+    path = Path(path)
+    suffix = path.suffix.lower()
     path.parent.mkdir(parents=True, exist_ok=True)
     if suffix == ".gif":
         imageio.mimsave(path, frames, duration=1000 / fps, loop=0)

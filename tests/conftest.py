@@ -16,6 +16,12 @@ from tests.helpers import Sim  # noqa: E402
 jax.config.update("jax_compilation_cache_dir",
                   os.environ.get("MJX_PUSH_TEST_CACHE", os.path.expanduser("~/.cache/mjx_push/jax_tests")))
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 2.0)
+# Compilation, not execution, is most of the suite's time on CPU, and XLA's optimisation passes most of
+# compilation (an MJX step compiles in about half the time without them and runs at half the speed,
+# which the tests' few substeps do not notice). The programs compute the same. MJX_PUSH_TEST_OPTIMIZE=1
+# keeps them.
+if os.environ.get("MJX_PUSH_TEST_OPTIMIZE") != "1":
+    jax.config.update("jax_disable_most_optimizations", True)
 
 
 @pytest.fixture(scope="session")

@@ -73,3 +73,26 @@ def tiny_run_config(agent: str, encoder_path: str):
                         eval_every_env_steps=6, eval_episodes=2),
     )
     return dataclasses.replace(cfg, env=env, train=t, encoder=encoder_path)
+
+
+TOY_TAU = 0.025
+
+
+def toy_run_config(encoder, kind="ugru", seed=0):
+    """A run of the toy task (train/toy.py): 5 batches of 4 environments x 10 steps, evaluations at 80,
+    160 and 200 env steps. The measured presets' learner (normalisation, privileged critic,
+    demonstrations with behaviour cloning), so checkpoints and saved policies carry all it adds."""
+    from train.config import AgentConfig, DemoConfig, LoopConfig, ReplayConfig, SACConfig, TrainConfig
+    from train.presets import RunConfig
+
+    train_cfg = TrainConfig(
+        agent=AgentConfig(kind, hidden=(32, 32), gru_hidden=8, critic_hidden=(32, 32), obs_norm=True,
+                          critic_obs="privileged", critic_layer_norm=True),
+        sac=SACConfig(batch_size=16, bc_weight=1.0, bc_batch_size=8, target_clip=True),
+        demo=DemoConfig(warmup=True, fraction=0.25, noise=0.1, label_all=True),
+        replay=ReplayConfig(capacity_transitions=2_000, success_tau=TOY_TAU),
+        loop=LoopConfig(num_envs=4, episode_len=10, total_env_steps=200, warmup_env_steps=80, utd=0.25,
+                        eval_every_env_steps=80, eval_episodes=6, seed=seed),
+    )
+    return RunConfig(agent=kind, preset="smoke", train=train_cfg,
+                     env=EnvConfig(episode_length=10, success_tau=TOY_TAU), encoder=encoder)

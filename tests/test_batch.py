@@ -8,6 +8,7 @@ import pytest
 from mjx_push import objects
 from mjx_push.batch import PushBatch
 from mjx_push.env import EnvConfig, decode_substeps
+from tests.helpers import a_s_for
 
 
 @pytest.fixture(scope="module")
@@ -48,6 +49,31 @@ def test_same_key_same_trajectory_bitwise(batch):
             np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
     c = rollout(batch, 4, 1)
     assert not np.array_equal(np.asarray(c[0].info("goal_xy")), np.asarray(a[0].info("goal_xy")))
+
+
+def test_step_phases_in_chunks_give_the_steps_result(batch):
+    """A scheduler's view (begin, advance in chunks of 7 substeps, finish each environment when its own
+    substeps are spent) reproduces `step`, where every environment waits for the slowest."""
+    state = batch.jit_reset(jax.random.PRNGKey(5))
+    lo, hi = batch.config.substeps
+    n = np.array([lo, lo + 9, lo + 20, lo + 3])  # different step lengths: the environments drift apart
+    a_s = jnp.asarray([a_s_for(int(k), lo, hi) for k in n])
+    a = jnp.concatenate([jax.random.uniform(jax.random.PRNGKey(6), (4, 2), minval=-1, maxval=1), a_s[:, None]], 1)
+    want = batch.jit_step(state, a)
+    begin, advance, ready, finish = (jax.jit(batch.begin), jax.jit(batch.advance, static_argnums=1),
+                                     jax.jit(batch.ready), jax.jit(batch.finish))
+    s = begin(state, a, jnp.ones(4, bool))
+    finished = np.zeros(4, bool)
+    while not finished.all():
+        s = advance(s, 7)
+        done = np.asarray(ready(s)) & ~finished
+        s = finish(s, jnp.asarray(done))
+        finished |= done
+    np.testing.assert_array_equal(np.asarray(s.info("substeps")), n)
+    for get in (lambda x: x.obs["ee_xy"], lambda x: x.obs["object_mask"], lambda x: x.info("object_xy"),
+                lambda x: x.info("ee_xy_true"), lambda x: x.info("step"), lambda x: x.reward,
+                lambda x: x.info("corrections").distance):
+        np.testing.assert_allclose(np.asarray(get(s), np.float64), np.asarray(get(want), np.float64), atol=1e-6)
 
 
 def test_utilisation(batch):

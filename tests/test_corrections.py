@@ -1,4 +1,4 @@
-"""Correction counters (SPEC section 7) on hand-made distance sequences."""
+"""Correction counters (docs/task.md section 7) on hand-made distance sequences."""
 
 import jax
 import jax.numpy as jnp

@@ -1,22 +1,17 @@
-"""CPU MuJoCo environment (export.cpu_env) against the MJX environment, and its Gymnasium wrapper.
+"""CPU MuJoCo environment (export.cpu_env) against the MJX environment (its Gymnasium wrapper: test_gym_env.py).
 
 JAX use is kept to the session fixture `box_sim` (one compiled reset and step, shared with the physics
 tests) and a few small eager or jitted calls."""
 
-import warnings
-
-import gymnasium
 import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
-from gymnasium.utils.env_checker import check_env
 from mujoco import mjx
 
 from export import controller_np, corrections_np, masks_np
 from export.cpu_env import CpuPushEnv, decode_substeps, renderer_available, sanitize_action
-from export.gym_env import ENV_ID, MjxPushGymEnv, split_observation
 from mjx_push import controller, masks, objects, scene
 from mjx_push import corrections as corr
 from mjx_push import env as mjx_env
@@ -299,56 +294,3 @@ def test_reset_draws_shapes_and_is_seeded():
         CpuPushEnv(mask_source="camera")
     with pytest.raises(ValueError, match="geom_type"):
         CpuPushEnv(mjx_env.EnvConfig(objects=objects.ObjectConfig(shape="cylinder")), geom_type="box")
-
-
-# --- Gymnasium ----------------------------------------------------------------------------------------
-def test_gym_env_passes_checker_and_make():
-    env = gymnasium.make(ENV_ID, mask_source="analytic", render_mode="rgb_array", render_size=(48, 64))
-    has_renderer = renderer_available()
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")  # the checker reports problems as warnings: fail on any
-        check_env(env.unwrapped, skip_render_check=not has_renderer)
-    obs, info = env.reset(seed=0)
-    assert set(obs) == {"observation", "achieved_goal", "desired_goal"}
-    assert obs["observation"].dtype == np.float32 and obs["achieved_goal"].dtype == np.uint8
-    assert env.observation_space.contains(obs)
-    ee, mask = split_observation(obs["observation"])
-    np.testing.assert_array_equal(mask.reshape(-1), obs["achieved_goal"].astype(bool))
-    np.testing.assert_allclose(ee, info["ee_xy_true"], atol=1e-3)
-    obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
-    assert reward == env.unwrapped.compute_reward(obs["achieved_goal"], obs["desired_goal"], info)
-    assert terminated is False and "is_success" in info
-    if has_renderer:
-        assert env.render().shape == (48, 64, 3)
-    env.close()
-    import importlib
-
-    import export.gym_env as ge
-
-    importlib.reload(ge)  # registration is guarded: a second import must not fail
-    assert ENV_ID in gymnasium.registry
-
-
-def test_compute_reward_batched():
-    env = MjxPushGymEnv(geom_type="box", mask_source="analytic")
-    n = scene.IMAGE_SIZE**2
-    goal = np.array([0.5, 0.0])
-    objs = goal + np.array([[0.0, 0.0], [0.009, 0.0], [0.0, 0.011], [0.3, 0.3]])
-    expect = np.array([0.0, 0.0, -1.0, -1.0], np.float32)
-    ag = np.zeros((4, n), np.uint8)
-    infos = [{"object_xy": o, "goal_xy": goal} for o in objs]
-    for batch_info in (infos, np.array(infos, dtype=object), {"object_xy": objs, "goal_xy": np.tile(goal, (4, 1))}):
-        r = env.compute_reward(ag, ag, batch_info)
-        assert r.shape == (4,) and r.dtype == np.float32
-        np.testing.assert_array_equal(r, expect)
-    # SB3's HER passes (batch, 1)-shaped infos for one environment.
-    r = env.compute_reward(ag, ag, np.array(infos, dtype=object).reshape(4, 1))
-    np.testing.assert_array_equal(r, expect)
-    assert float(env.compute_reward(ag[0], ag[0], infos[1])) == 0.0
-    r2 = env.compute_reward(np.zeros((2, 2, n)), None, {"object_xy": objs.reshape(2, 2, 2), "goal_xy": goal})
-    np.testing.assert_array_equal(r2, expect.reshape(2, 2))
-    with pytest.raises(ValueError, match="transitions"):
-        env.compute_reward(ag[:3], ag[:3], infos)
-    env.reset(seed=0)
-    with pytest.raises(ValueError, match="shape"):
-        env.step(np.zeros(4, np.float32))

@@ -52,13 +52,37 @@ def test_bad_evaluation_settings_are_named(kwargs, message):
         EvalSpec(**kwargs)
 
 
-def test_eval_cli_reports_bad_input(tmp_path, capsys):
-    assert cli_main(["eval", str(tmp_path / "missing-run")]) == 2
-    assert "policy file not found" in capsys.readouterr().err
+def test_eval_cli_reports_bad_input_in_the_users_words(tmp_path, capsys):
+    missing = tmp_path / "missing-run"
+    assert cli_main(["eval", str(missing)]) == 2
+    err = capsys.readouterr().err
+    assert f"POLICY {missing}: no such file or directory" in err and "missing-run.msgpack" not in err
+    assert cli_main(["eval", str(tmp_path)]) == 2
+    assert "not a finished run directory" in capsys.readouterr().err
     assert cli_main(["eval", str(tmp_path), "--episodes", "0"]) == 2
-    assert "episodes must be a positive integer" in capsys.readouterr().err
+    assert "--episodes must be a positive integer" in capsys.readouterr().err
+    assert cli_main(["eval", str(tmp_path), "--mass", "0.1", "0.2"]) == 2
+    assert "--mass needs --setting custom" in capsys.readouterr().err
+    assert cli_main(["eval", str(tmp_path), "--setting", "custom", "--mass", "0.5", "0.1"]) == 2
+    assert "--mass must satisfy" in capsys.readouterr().err
+    assert cli_main(["eval", str(tmp_path), "--video", str(tmp_path / "v.avi")]) == 2
+    assert "--video" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         cli_main(["eval", str(tmp_path), "--shape", "sphere"])
+
+
+def test_eval_and_deploy_share_options_and_defaults():
+    import dataclasses as dc
+
+    from export.cli import Deploy
+    from train.cli import Eval
+    from train.eval_options import EvalOptions
+
+    shared = {f.name: (f.type, f.default) for f in dc.fields(EvalOptions)}
+    for cmd in (Eval, Deploy):
+        assert {f.name: (f.type, f.default) for f in dc.fields(cmd) if f.name in shared} == shared, cmd
+    spec = EvalOptions().spec()
+    assert (spec.setting, spec.shape, spec.seed) == (EvalSpec().setting, EvalSpec().shape, EvalSpec().seed)
 
 
 def test_custom_and_difficult_settings_draw_their_ranges():
@@ -77,7 +101,7 @@ def test_scripted_pushes_give_the_known_correction_counts(box_sim):
     (success from the first step, no correction)."""
     start, goal = (0.1, 0.0, 0.0), (0.15, 0.0, 0.0)
     # Env 1's goal is 2 cm ahead and the push aims 13 cm further, so the object leaves the disc fast: an
-    # exit counts only when its substep jumps more than eps = 2e-5 m past tau (SPEC section 7); a slow
+    # exit counts only when its substep jumps more than eps = 2e-5 m past tau (docs/task.md section 7); a slow
     # exit (under ~0.04 m/s) may go uncounted.
     params = [make_params("box", sides=(0.06, 0.06), start=start, goal=goal),
               make_params("box", sides=(0.06, 0.06), start=start, goal=(0.12, 0.0, 0.0)),
@@ -125,7 +149,7 @@ def test_the_same_seeds_give_the_same_episodes_to_every_policy(tiny_egru_run, ev
     trained = run_mod.load_policy(d / "best_policy")
     from train.networks import make_networks
 
-    other_actor, _ = make_networks(cfg.train.agent).init(jax.random.PRNGKey(99), cfg.env.episode_length)
+    other_actor = make_networks(cfg.train.agent).init_actor(jax.random.PRNGKey(99), cfg.env.episode_length)
     other = Policy(cfg, other_actor, trained.encoder_params, {})
     spec = EvalSpec(setting="standard", shape="cylinder", episodes=3, batch=2, record=3)
     a, b = evaluator.evaluate(trained, spec), evaluator.evaluate(other, spec)
@@ -250,7 +274,7 @@ def test_reproduce_reuses_the_run_and_caches_each_evaluation(tiny_egru_run, eval
     assert (out / "learning_curves.png").stat().st_size > 10_000
 
     log, again = go()
-    assert "reusing evaluation" in log and again == first
+    assert "reusing evaluation" in log and again == first, (again, first)
 
     stale = dict(rec, per_episode={k: v for k, v in rec["per_episode"].items() if k != "start_distance"})
     cache.write_text(json.dumps(stale))  # a cache from before the distances were recorded
@@ -263,7 +287,7 @@ def test_reproduce_reuses_the_run_and_caches_each_evaluation(tiny_egru_run, eval
 
     # New weights under the same name: the cached evaluation no longer belongs to them.
     policy = run_mod.load_policy(run_dir / name)
-    other, _ = make_networks(cfg.train.agent).init(jax.random.PRNGKey(7), cfg.env.episode_length)
+    other = make_networks(cfg.train.agent).init_actor(jax.random.PRNGKey(7), cfg.env.episode_length)
     run_mod.save_policy(run_dir / name, cfg, other, policy.encoder_params, policy.scores)
     log, _ = go()
     assert "reusing evaluation" not in log

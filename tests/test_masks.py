@@ -1,4 +1,4 @@
-"""Analytic masks against MuJoCo's own renderer (SPEC section 2): mean IoU >= 0.95 over random poses."""
+"""Analytic masks against MuJoCo's own renderer (docs/task.md section 2): mean IoU >= 0.95 over random poses."""
 
 import jax
 import jax.numpy as jnp
@@ -42,7 +42,7 @@ def test_masks_match_renderer(shape):
             else:
                 size = np.array([rng.uniform(0.04, 0.055), rng.uniform(0.023, 0.0275), 0.0])
                 hh = size[1]
-            # Positions over the encoder's training range (SPEC section 5): wider than the task's.
+            # Positions over the encoder's training range (docs/task.md section 5): wider than the task's.
             xy = home + np.array([rng.uniform(-0.25, 0.30), rng.uniform(-0.30, 0.30)])
             yaw = rng.uniform(-np.pi, np.pi)
             m.geom_size[ids.object_geom] = size

@@ -1,4 +1,4 @@
-"""Object randomisation (SPEC sections 1 and 4): ranges, shape filters, the improved mass sampler."""
+"""Object randomisation (docs/task.md sections 1 and 4): ranges, shape filters, the improved mass sampler."""
 
 import jax
 import jax.numpy as jnp
@@ -30,7 +30,7 @@ def test_improved_mass_matches_formula_cdf():
         return 0.5 * (1 - np.exp(-u / beta)) + 0.5 * np.exp(-(1 - u) / beta) * (u > 0)
 
     assert m.min() >= b - 1e-6 and m.max() <= a + b + 1e-6
-    np.testing.assert_allclose([b, a + b], [0.0005, 2.5], rtol=1e-6)  # SPEC: m in [0.0005, 2.5]
+    np.testing.assert_allclose([b, a + b], [0.0005, 2.5], rtol=1e-6)  # docs/task.md section 4: m in [0.0005, 2.5]
     assert stats.kstest(m, cdf).pvalue > 1e-3
     # The density piles up at both ends: each outer tenth holds 0.5 (1 - e^-0.7) = 25 % (uniform: 10 %).
     expected = 0.5 * (1 - np.exp(-0.1 / beta))

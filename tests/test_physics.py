@@ -1,4 +1,4 @@
-"""Physics validity (SPEC section 8), the controller, exact substep counts and invalid-state handling.
+"""Physics validity (docs/task.md section 8), the controller, exact substep counts and invalid-state handling.
 
 All tests share one compiled reset and step per shape (batch size helpers.B)."""
 

@@ -6,6 +6,12 @@ import train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
 import csv
 import dataclasses
 import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import jax
 import numpy as np
@@ -14,27 +20,10 @@ import pytest
 from mjx_push.env import EnvConfig
 from train import run as run_mod
 from train.cli import main as cli_main
-from train.config import AgentConfig, DemoConfig, LoopConfig, ReplayConfig, SACConfig, TrainConfig
-from train.presets import RunConfig
 from train.toy import make_toy
 
-TAU = 0.025
-
-
-def toy_run_config(encoder, kind="ugru", seed=0) -> RunConfig:
-    # The measured presets' learner (normalisation, privileged critic, demonstrations with behaviour
-    # cloning), so checkpoints and saved policies carry everything they add to the state.
-    train_cfg = TrainConfig(
-        agent=AgentConfig(kind, hidden=(32, 32), gru_hidden=8, critic_hidden=(32, 32), obs_norm=True,
-                          critic_obs="privileged", critic_layer_norm=True),
-        sac=SACConfig(batch_size=16, bc_weight=1.0, bc_batch_size=8, target_clip=True),
-        demo=DemoConfig(warmup=True, fraction=0.25, noise=0.1),
-        replay=ReplayConfig(capacity_transitions=2_000, success_tau=TAU),
-        loop=LoopConfig(num_envs=4, episode_len=10, total_env_steps=200, warmup_env_steps=80, utd=0.25,
-                        eval_every_env_steps=80, eval_episodes=6, seed=seed),
-    )
-    return RunConfig(agent=kind, preset="smoke", train=train_cfg, env=EnvConfig(episode_length=10, success_tau=TAU),
-                     encoder=encoder)
+from tests.helpers import TOY_TAU as TAU
+from tests.helpers import toy_run_config
 
 
 @pytest.fixture(scope="module")
@@ -144,14 +133,110 @@ def test_policy_files_are_validated(full_run, tmp_path):
         run_mod.load_policy(bad)
 
 
+# --- reliability: signals, crashes, concurrent runs -----------------------------------------------------
+def test_sigint_stops_after_the_batch_with_a_checkpoint_and_resume_continues(full_run, tmp_path, toy):
+    cfg, _, _, full_state = full_run
+    d = tmp_path / "interrupted"
+    handler = signal.getsignal(signal.SIGINT)
+
+    def ctrl_c(metrics):  # Ctrl-C during the third batch (120 env steps: no evaluation, no scheduled checkpoint)
+        if int(metrics["env_steps"]) == 120:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    partial, _ = run_mod.run(cfg, d, adapter=toy, stop_on_signal=True, on_iteration=ctrl_c)
+    assert (partial["interrupted_at_env_steps"], partial["signal"]) == (120, "SIGINT")
+    assert run_mod.Checkpoints(d / "checkpoints").latest() == 120  # written because of the signal
+    assert signal.getsignal(signal.SIGINT) is handler  # the process's own handler is back
+    summary, state = run_mod.run(cfg, d, adapter=toy, resume=True)
+    assert summary["resumed_from_env_steps"] == 120
+    for a, b in zip(jax.tree.leaves(jax.device_get(state)), jax.tree.leaves(full_state)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_train_command_stops_on_signals_and_says_how_to_resume(full_run, monkeypatch, capsys):
+    cfg, d, _, _ = full_run
+    seen = {}
+
+    def interrupted_run(cfg, run_dir, **kwargs):  # what run() returns after a Ctrl-C
+        seen.update(kwargs)
+        return {"stopped_at_env_steps": 120, "interrupted_at_env_steps": 120, "signal": "SIGINT"}, None
+
+    monkeypatch.setattr(run_mod, "run", interrupted_run)
+    monkeypatch.setattr(run_mod, "load_config", lambda path: cfg)
+    monkeypatch.setattr(run_mod, "finished_summary", lambda *a: None)
+    with pytest.raises(SystemExit) as exit_:
+        cli_main(["train", "--resume", "--run-dir", str(d)])
+    assert exit_.value.code == 130 and seen["stop_on_signal"] is True
+    assert f"mjx-push train --resume --run-dir {d}" in capsys.readouterr().out
+
+
+def test_a_second_signal_interrupts_at_once():
+    from train.interrupt import StopOnSignal
+
+    before = signal.getsignal(signal.SIGTERM)
+    with StopOnSignal() as stop:
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(0.01)  # let the interpreter run the handler
+        assert stop.requested == "SIGTERM"
+        with pytest.raises(KeyboardInterrupt):
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.01)
+    assert signal.getsignal(signal.SIGTERM) is before
+
+
+def test_kill_9_while_a_checkpoint_is_written_resumes_to_the_same_result(full_run, tmp_path, toy, encoder_file):
+    cfg, _, _, full_state = full_run
+    d = tmp_path / "killed"
+    r = subprocess.run([sys.executable, "-m", "tests.crash_run", str(d), encoder_file],
+                       cwd=Path(__file__).resolve().parents[1], capture_output=True, text=True, timeout=600)
+    assert r.returncode == -signal.SIGKILL, r.stdout[-2000:] + r.stderr[-3000:]
+    ckpt = d / "checkpoints"
+    assert list(ckpt.glob("120.orbax-checkpoint-tmp*"))  # the half-committed checkpoint is still there
+    assert run_mod.Checkpoints(ckpt).latest() == 80  # ... and is not taken for one
+    summary, state = run_mod.run(cfg, d, adapter=toy, resume=True)
+    assert summary["resumed_from_env_steps"] == 80
+    for a, b in zip(jax.tree.leaves(jax.device_get(state)), jax.tree.leaves(full_state)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    assert not list(ckpt.glob("*tmp*"))  # leftovers cleaned up
+    with (d / "metrics.csv").open() as f:
+        assert [int(float(r["env_steps"])) for r in csv.DictReader(f)] == list(range(40, 201, 40))
+
+
+def test_two_runs_into_one_directory_are_refused(tmp_path, toy, encoder_file):
+    from train.run_lock import RunLock
+
+    d = tmp_path / "busy"
+    d.mkdir()
+    with RunLock(d):  # another process's run (flock: a second descriptor conflicts as another process would)
+        with pytest.raises(ValueError, match=rf"{d} is in use by another mjx-push process \(pid {os.getpid()}\)"):
+            run_mod.run(toy_run_config(encoder_file), d, adapter=toy)
+        with pytest.raises(ValueError, match="in use"):
+            run_mod.run(toy_run_config(encoder_file), d, adapter=toy, resume=True)
+    assert sorted(p.name for p in d.iterdir()) == [".lock"]  # refused before touching anything
+
+
+def test_resume_of_a_finished_run_says_so_and_changes_nothing(full_run, toy, capsys):
+    cfg, d, _, _ = full_run
+    before = {p: (p.stat().st_mtime_ns, p.stat().st_size) for p in d.rglob("*")}
+    with pytest.raises(run_mod.RunFinished, match="has finished"):
+        run_mod.run(cfg, d, adapter=toy, resume=True)
+    assert cli_main(["train", "--resume", "--run-dir", str(d)]) == 0
+    out = capsys.readouterr().out
+    assert "has finished" in out and "Nothing was changed" in out
+    assert {p: (p.stat().st_mtime_ns, p.stat().st_size) for p in d.rglob("*")} == before
+
+
 def test_cli_rejects_bad_settings(capsys):
     assert cli_main(["train", "--lr", "-1", "--run-dir", "/nonexistent/never"]) == 2
-    assert "sac.lr" in capsys.readouterr().err
+    assert "--lr must be" in capsys.readouterr().err
+    assert cli_main(["train", "--num-envs", "0", "--run-dir", "/nonexistent/never"]) == 2
+    err = capsys.readouterr().err
+    assert "--num-envs must be" in err and "loop." not in err
     with pytest.raises(SystemExit):
         cli_main(["train", "--agent", "dqn"])
     assert "dqn" in capsys.readouterr().err
     assert cli_main(["train", "--success-tau", "0", "--run-dir", "/nonexistent/never"]) == 2
-    assert "success_tau" in capsys.readouterr().err
+    assert "--success-tau must be" in capsys.readouterr().err
 
 
 def test_success_tau_sets_the_environment_and_the_relabelling_radius():

@@ -1,4 +1,4 @@
-"""The scene as built in code (SPEC section 1), checked with CPU MuJoCo."""
+"""The scene as built in code (docs/task.md section 1), checked with CPU MuJoCo."""
 
 import mujoco
 import numpy as np

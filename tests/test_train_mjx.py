@@ -52,25 +52,35 @@ def test_adapter_latents_are_the_encoder_of_the_masks(encoder_file):
     assert not np.allclose(obs["z_obj"], info["z_goal"])  # start and goal differ
 
 
-def test_scheduled_stepping_gives_the_lockstep_episodes_on_the_pushing_scene(encoder_file):
-    """Each environment advanced 7 substeps at a time and given its next action as soon as its own
-    step (10-30 substeps) is spent: the same episodes as stepping all environments in lockstep."""
-    from train.loop import make_train
+def test_nan_in_a_running_environment_drops_the_episode_and_training_continues(encoder_file, tmp_path):
+    """NaN injected into environment 0's joint velocities at the second step of every episode: the
+    environment detects it (and puts the episode's initial state back), the learner stores the episode
+    as invalid and never samples it, and training runs to the end on environment 1's episodes."""
+    import csv
+    import dataclasses
+
+    from mjx_push import objects
+    from mjx_push.batch import BatchState
 
     cfg = tiny_run_config("vpm", encoder_file)
-    params = enc.load(encoder_file)
-    lock = make_train(cfg.train, make_push_adapter(cfg.env, params, substep_chunk=0))
-    sched = make_train(cfg.train, make_push_adapter(cfg.env, params, substep_chunk=7))
-    assert lock.config.loop.num_envs == 2 and sched.config.loop.num_envs == 2
-    actor = lock.init(jax.random.PRNGKey(0)).sac.actor_params
-    args = (actor, jax.random.PRNGKey(11), jnp.asarray(True), jnp.asarray(False))
-    a, _ = jax.jit(lock.rollout)(*args)
-    b, _ = jax.jit(sched.rollout)(*args)
-    steps = np.floor((np.asarray(a["action"][..., 2]) + 1) / 2 * 20)
-    assert np.ptp(steps) >= 5  # the environments' step lengths differed, so they ran out of phase
-    for k in ("ee_xy", "obj_xy", "z_obj", "action", "valid"):
-        np.testing.assert_allclose(np.asarray(a[k], np.float64), np.asarray(b[k], np.float64), rtol=0, atol=2e-5,
-                                   err_msg=k)
+    cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, objects=objects.ObjectConfig(shape="cuboid")))
+    base = make_push_adapter(cfg.env, enc.load(encoder_file), substep_chunk=0)
+
+    def step(s: BatchState, action):
+        (g,) = s.groups  # one shape group: cuboids
+        hit = (jnp.arange(g.reward.shape[0]) == 0) & (g.info["step"] == 1)
+        qvel = jnp.where(hit[:, None], jnp.nan, g.pipeline_state.qvel)
+        return base.step(BatchState((g.replace(pipeline_state=g.pipeline_state.replace(qvel=qvel)),)), action)
+
+    summary, state = run_mod.run(cfg, tmp_path / "nan", adapter=dataclasses.replace(base, step=step))
+    assert summary["env_steps"] == cfg.train.loop.total_env_steps and summary["updates"] > 0  # it went on
+    data = jax.device_get(state.buffer.data)
+    np.testing.assert_array_equal(data["valid"][:4], [False, True, False, True])  # env 0's episodes dropped
+    assert np.isfinite(data["z_obj"][:4]).all() and np.isfinite(data["obj_xy"][:4]).all()  # nothing leaked
+    assert all(np.isfinite(x).all() for x in jax.tree.leaves(jax.device_get(state.sac)))
+    with (tmp_path / "nan" / "metrics.csv").open() as f:
+        assert [float(r["train/invalid_rate"]) for r in csv.DictReader(f)] == [0.5, 0.5]
+    assert (tmp_path / "nan" / "best_policy.msgpack").is_file()
 
 
 def test_push_adapter_rejects_a_negative_substep_chunk():

@@ -5,10 +5,13 @@ from __future__ import annotations
 import dataclasses
 import sys
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 import mjx_push  # noqa: F401  (applies the CPU XLA flag before jax starts)
 import tyro
+
+from train.eval_options import EvalOptions
+from train.flags import flag_errors
 
 
 @dataclasses.dataclass
@@ -50,7 +53,7 @@ class Demo:
 
 @dataclasses.dataclass
 class TrainEncoder:
-    """Train the mask autoencoder (SPEC section 5) on masks drawn on device; report held-out IoU.
+    """Train the mask autoencoder (docs/task.md section 5) on masks drawn on device; report held-out IoU.
 
     The shipped encoder (mjx_push/assets/encoder.msgpack) was made by this command with
     `--out mjx_push/assets/encoder.msgpack`; its JSON record holds the exact command and seed."""
@@ -102,6 +105,11 @@ class TrainEncoder:
                       f"encoder written to {self.out}")
 
 
+def _preset_arg(metavar: str):
+    # The preset decides these unless given: say so instead of tyro's "(default: None)".
+    return tyro.conf.arg(metavar=metavar, help_behavior_hint="(default: the preset's)")
+
+
 @dataclasses.dataclass
 class Train:
     """Train a pushing agent (SAC + HER) on the MJX scene: logs, checkpoints, best policy in --run-dir.
@@ -109,53 +117,78 @@ class Train:
     Presets: cpu (the default: learns to push in about 20 minutes on 2 CPU cores), cpu-long (about
     two hours, for 1 cm), smoke (minutes, proves the pipeline), reference (the reference code's one
     call of its training script: 29,000 env steps with its action box and learner), paper (millions of
-    env steps, sized for one GPU). Any field left unset keeps the preset's value."""
+    env steps, sized for one GPU). Any option left unset keeps the preset's value. Ctrl-C (or
+    SIGTERM) stops after the current batch with a checkpoint; --resume continues it."""
 
-    agent: Literal["vpm", "stacked", "ugru", "egru"] = "egru"
+    agent: Literal["vpm", "stacked", "ugru", "egru"] = "vpm"
+    """vpm (the default: the cheapest to train on a CPU), stacked, ugru, egru (the paper's proposal)"""
     preset: Literal["cpu", "cpu-long", "smoke", "reference", "paper"] = "cpu"
     seed: int = 0
-    run_dir: Path | None = None
-    """default: runs/<agent>-<preset>-s<seed>"""
-    resume: bool = False
+    run_dir: Annotated[Path | None, tyro.conf.arg(
+        metavar="DIR", help_behavior_hint="(default: runs/<agent>-<preset>-s<seed>)")] = None
+    """where the run's config, logs, checkpoints and policies go"""
+    resume: Annotated[bool, tyro.conf.arg(help_behavior_hint="")] = False
     """continue the run in --run-dir from its latest checkpoint (same configuration required)"""
-    encoder: Path | None = None
-    """encoder weights (default: the shipped pretrained encoder)"""
-    num_envs: int | None = None
-    total_env_steps: int | None = None
-    warmup_env_steps: int | None = None
-    utd: float | None = None
+    encoder: Annotated[Path | None, tyro.conf.arg(
+        metavar="PATH", help_behavior_hint="(default: the shipped pretrained encoder)")] = None
+    """encoder weights (.msgpack, from mjx-push train-encoder)"""
+    num_envs: Annotated[int | None, _preset_arg("N")] = None
+    total_env_steps: Annotated[int | None, _preset_arg("N")] = None
+    warmup_env_steps: Annotated[int | None, _preset_arg("N")] = None
+    utd: Annotated[float | None, _preset_arg("X")] = None
     """gradient updates per environment step"""
-    batch_size: int | None = None
-    lr: float | None = None
-    eval_every_env_steps: int | None = None
-    eval_episodes: int | None = None
+    batch_size: Annotated[int | None, _preset_arg("N")] = None
+    lr: Annotated[float | None, _preset_arg("X")] = None
+    eval_every_env_steps: Annotated[int | None, _preset_arg("N")] = None
+    eval_episodes: Annotated[int | None, _preset_arg("N")] = None
     checkpoint_every: int = 10
     """also checkpoint every this many episode batches (always at evaluations and at the end)"""
-    success_tau: float | None = None
-    """success radius in metres for the reward, success and HER relabelling (default 0.01, the paper's;
+    success_tau: Annotated[float | None, tyro.conf.arg(metavar="METRES", help_behavior_hint="(default: 0.01)")] = None
+    """success radius for the reward, success and HER relabelling (0.01 is the paper's;
     the original vision-proprioception model used 0.05)"""
-    substep_chunk: int | None = None
-    """substeps per tick of the rollout's scheduler (default 50; 0: all environments step in lockstep,
+    substep_chunk: Annotated[int | None, tyro.conf.arg(metavar="N", help_behavior_hint="(default: 50)")] = None
+    """substeps per tick of the rollout's scheduler (0: all environments step in lockstep,
     each step waiting for the slowest); changes speed only, never the episodes"""
-    progress: bool = True
+    progress: Annotated[bool, tyro.conf.arg(help_behavior_hint="")] = True
+    """no progress bar, only a line per evaluation (output that is not a terminal,
+    e.g. a log file, gets plain progress lines anyway)"""
+    set: Annotated[tuple[str, ...], tyro.conf.arg(metavar="PATH=VALUE", help_behavior_hint="(default: none)")] = ()
+    """override any field of the run configuration (config.json's paths; values in JSON), e.g.
+    --set train.sac.bc_weight=0 env.controller.gain=1 env.substeps=[10,600]; applied after the other
+    options"""
+
+    # Options that override a field of the preset's run configuration: error messages about that field
+    # name the option instead.
+    _FIELDS = {"num_envs": "loop.num_envs", "total_env_steps": "loop.total_env_steps",
+               "warmup_env_steps": "loop.warmup_env_steps", "utd": "loop.utd",
+               "eval_every_env_steps": "loop.eval_every_env_steps", "eval_episodes": "loop.eval_episodes",
+               "batch_size": "sac.batch_size", "lr": "sac.lr"}
 
     def config(self):
         from train import presets
 
-        cfg = presets.make(self.agent, self.preset, self.seed)
-        cfg = presets.override(cfg, **{
-            "loop.num_envs": self.num_envs, "loop.total_env_steps": self.total_env_steps,
-            "loop.warmup_env_steps": self.warmup_env_steps, "loop.utd": self.utd,
-            "loop.eval_every_env_steps": self.eval_every_env_steps, "loop.eval_episodes": self.eval_episodes,
-            "sac.batch_size": self.batch_size, "sac.lr": self.lr,
-        })
-        if self.encoder is not None:
-            cfg = dataclasses.replace(cfg, encoder=str(self.encoder))
-        if self.success_tau is not None:  # the environment and the learner's relabelling share the radius
-            replay = dataclasses.replace(cfg.train.replay, success_tau=self.success_tau)
-            cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, success_tau=self.success_tau),
-                                      train=dataclasses.replace(cfg.train, replay=replay))
+        with flag_errors(self._flag_names()):
+            cfg = presets.make(self.agent, self.preset, self.seed)
+            cfg = presets.override(cfg, **{field: getattr(self, name) for name, field in self._FIELDS.items()})
+            if self.encoder is not None:
+                cfg = dataclasses.replace(cfg, encoder=str(self.encoder))
+            if self.success_tau is not None:  # the environment and the learner's relabelling share the radius
+                replay = dataclasses.replace(cfg.train.replay, success_tau=self.success_tau)
+                cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, success_tau=self.success_tau),
+                                          train=dataclasses.replace(cfg.train, replay=replay))
+        if self.set:
+            try:
+                cfg = presets.with_overrides(cfg, presets.parse_overrides(self.set))
+            except ValueError as e:  # unknown paths name themselves; a bad value names its field
+                raise ValueError(str(e) if str(e).startswith("--set") else f"--set: {e}") from None
         return cfg
+
+    def _flag_names(self) -> dict[str, str]:
+        names = {field: "--" + name.replace("_", "-") for name, field in self._FIELDS.items()}
+        names.update({"env.success_tau": "--success-tau", "replay.success_tau": "--success-tau",
+                      "success_tau": "--success-tau", "substep_chunk": "--substep-chunk",
+                      "checkpoint_every": "--checkpoint-every"})
+        return names
 
     def run(self) -> None:
         from rich.console import Console
@@ -165,109 +198,137 @@ class Train:
 
         console = Console()
         run_dir = self.run_dir or Path("runs") / f"{self.agent}-{self.preset}-s{self.seed}"
+        if self.checkpoint_every < 1:
+            raise ValueError(f"--checkpoint-every must be >= 1, got {self.checkpoint_every}")
         if self.resume:
+            if not run_dir.is_dir():
+                raise ValueError(f"--resume: no run directory {run_dir}" + ("" if self.run_dir else
+                                 " (the default for these --agent/--preset/--seed; pass --run-dir)"))
             cfg = run_mod.load_config(run_dir / "config.json")
+            try:
+                run_mod.check_not_finished(run_dir, cfg)
+            except run_mod.RunFinished as done:
+                console.print(f"{done} Nothing was changed.", soft_wrap=True)
+                return
             if self._overrides():
                 raise ValueError("--resume continues the saved configuration; drop the other settings "
-                                 f"({', '.join(self._overrides())})")
+                                 f"({', '.join('--' + n.replace('_', '-') for n in self._overrides())})")
         else:
             cfg = self.config()
         loop = cfg.train.loop
-        console.print(f"[bold]mjx-push train[/] {cfg.agent} ({self.preset}): {loop.num_envs} envs, "
+        console.print(f"[bold]mjx-push train[/] {cfg.agent} ({cfg.preset}): {loop.num_envs} envs, "
                       f"{loop.total_env_steps:,} env steps, {loop.warmup_env_steps:,} warm-up, "
                       f"{loop.updates_per_iteration} updates per batch of {loop.env_steps_per_iteration} steps; "
-                      f"run dir {run_dir}")
+                      f"run dir {run_dir}", soft_wrap=True)
         console.print("  the first batch includes JIT compilation (minutes on CPU)")
-        with TrainProgress(console, loop, enabled=self.progress) as bar:
-            summary, _ = run_mod.run(cfg, run_dir, resume=self.resume, checkpoint_every=self.checkpoint_every,
-                                     on_iteration=bar.update, substep_chunk=self.substep_chunk)
+        try:
+            with TrainProgress(console, loop, enabled=self.progress) as bar, flag_errors(self._flag_names()):
+                summary, _ = run_mod.run(cfg, run_dir, resume=self.resume, checkpoint_every=self.checkpoint_every,
+                                         on_iteration=bar.update, substep_chunk=self.substep_chunk,
+                                         stop_on_signal=True)
+        except run_mod.RunFinished as done:
+            console.print(f"{done} Nothing was changed.", soft_wrap=True)
+            return
+        if "interrupted_at_env_steps" in summary:
+            console.print(f"[yellow]interrupted[/] ({summary['signal']}) at {summary['interrupted_at_env_steps']:,} "
+                          f"env steps; checkpoint written. Continue with: mjx-push train --resume --run-dir {run_dir}",
+                          soft_wrap=True)
+            raise SystemExit(130)
         console.print(f"best evaluation: mean reward {summary['best_eval_mean_reward']:.2f}, success "
                       f"{summary['best_eval_success_rate']:.0%} at {summary['best_env_steps']:,} env steps")
         console.print(f"policy: {run_dir / 'best_policy.msgpack'} (+ .json); logs: {run_dir / 'metrics.csv'}, "
                       f"TensorBoard {run_dir / 'tb'}; checkpoints: {run_dir / 'checkpoints'}")
 
     def _overrides(self) -> list[str]:
-        names = ("num_envs", "total_env_steps", "warmup_env_steps", "utd", "batch_size", "lr",
-                 "eval_every_env_steps", "eval_episodes", "encoder", "success_tau")
-        return [n for n in names if getattr(self, n) is not None]
+        names = (*self._FIELDS, "encoder", "success_tau")
+        return [n for n in names if getattr(self, n) is not None] + (["set"] if self.set else [])
 
 
-def resolve_policy(path: Path):
+def resolve_policy(path: Path, name: str = "POLICY"):
     """A run directory (its best policy), a saved policy (.msgpack/.json or their stem) or an exported
-    .npz -> train.run.Policy."""
+    .npz -> train.run.Policy. Errors name the option (`name`) and the path as the user typed it."""
     from train import run as run_mod
 
     path = Path(path)
-    if path.suffix == ".npz":
-        from export.policy_file import load_as_policy  # the CLI composes all three packages
+    stem = path.with_suffix("") if path.suffix in (".msgpack", ".json") else path
+    if not (path.exists() or stem.with_suffix(".msgpack").exists() or stem.with_suffix(".json").exists()):
+        raise ValueError(f"{name} {path}: no such file or directory (a run directory, a saved policy "
+                         "best_policy.msgpack / .json or their stem, or an exported .npz)")
+    try:
+        if path.suffix == ".npz":
+            from export.policy_file import load_as_policy  # the CLI composes all three packages
 
-        return load_as_policy(path)
-    if path.is_dir():
-        if (path / "best_policy.msgpack").is_file():
-            return run_mod.load_policy(path / "best_policy")
-        raise ValueError(f"{path} is not a run directory (no best_policy.msgpack; did the run finish?)")
-    return run_mod.load_policy(path)
+            return load_as_policy(path)
+        if path.is_dir():
+            if (path / "best_policy.msgpack").is_file():
+                return run_mod.load_policy(path / "best_policy")
+            raise ValueError("not a finished run directory (no best_policy.msgpack)")
+        return run_mod.load_policy(path)
+    except ValueError as e:
+        raise ValueError(f"{name} {path}: {e}") from None
 
 
-@dataclasses.dataclass
-class Eval:
-    """Evaluate a policy with the paper's protocol (SPEC section 7) on the MJX scene.
+@dataclasses.dataclass(kw_only=True)
+class Eval(EvalOptions):
+    """Evaluate a policy with the paper's protocol (docs/task.md section 7) on the MJX scene.
+    `mjx-push deploy` runs an exported policy through the same protocol in CPU MuJoCo: the same options,
+    defaults, episodes and table."""
 
-    POLICY: a run directory, a saved policy (best_policy.msgpack) or an exported .npz."""
-
-    policy: tyro.conf.Positional[Path]
-    setting: Literal["standard", "difficult", "custom"] = "difficult"
-    shape: Literal["all", "cylinder", "square", "rectangular", "cuboid"] = "all"
-    episodes: int = 100
-    seed: int = 1_000_003
-    """episode seeds: the same for every agent"""
+    policy: Annotated[Path, tyro.conf.arg(metavar="POLICY"), tyro.conf.Positional]
+    """a run directory, a saved policy (best_policy.msgpack), an exported .npz, or `expert`: the
+    scripted expert on ground truth (a baseline, not a deployable policy)"""
     batch: int = 20
-    mass: tuple[float, float] | None = None
-    """custom setting: mass range (kg)"""
-    friction: tuple[float, float] | None = None
-    """custom setting: sliding friction range"""
-    min_height: float | None = None
-    """custom setting: minimum full height (m)"""
-    out: Path | None = None
-    """JSON with the table and per-episode values (default: eval.json beside the policy)"""
-    video: Path | None = None
-    """render the first --video-episodes episodes (top and under-table views) to .gif or .mp4"""
-    video_episodes: int = 2
+    """episodes simulated in parallel (does not change the episodes)"""
+    success_tau: Annotated[float | None, tyro.conf.arg(metavar="M", help_behavior_hint=(
+        "(default: the radius the policy trained for)"))] = None
+    """success radius in metres to score at (the correction counters use it too)"""
+    preset: Annotated[Literal["cpu", "cpu-long", "smoke", "reference", "paper"] | None, tyro.conf.arg(
+        help_behavior_hint="(default: cpu)")] = None
+    """POLICY expert only: the preset whose action box the expert acts in (reference: the paper's)"""
+    out: Annotated[Path | None, tyro.conf.arg(metavar="PATH", help_behavior_hint="(default: eval.json beside "
+                                               "the policy; outputs/eval-expert.json for the expert)")] = None
+    """JSON with the table and per-episode values"""
 
     def run(self) -> None:
         import json
 
         import numpy as np
         from rich.console import Console
-        from rich.table import Table
 
-        from train.evaluate import EvalSpec, evaluate
+        from train.evaluate import evaluate, metrics_table
 
-        if self.video is not None and self.video.suffix.lower() not in (".gif", ".mp4"):
-            raise ValueError(f"--video must end in .gif or .mp4, got {self.video}")
-        spec = EvalSpec(setting=self.setting, shape=self.shape, episodes=self.episodes, seed=self.seed,
-                        batch=min(self.batch, self.episodes), mass=self.mass, friction=self.friction,
-                        min_height=self.min_height, record=min(self.video_episodes, self.episodes) if self.video else 0)
-        policy = resolve_policy(self.policy)
+        if self.batch < 1:
+            raise ValueError(f"--batch must be a positive integer, got {self.batch}")
+        if self.success_tau is not None and not self.success_tau > 0:
+            raise ValueError(f"--success-tau must be a positive number of metres, got {self.success_tau}")
+        is_expert = str(self.policy) == "expert"
+        if self.preset is not None and not is_expert:
+            raise ValueError("--preset chooses the scripted expert's action box: use it with POLICY expert")
+        self.check_options()
+        spec = dataclasses.replace(self.spec(self.batch), success_tau=self.success_tau)
+        if is_expert:
+            from train import presets
+            from train.evaluate import ExpertPolicy
+
+            policy = ExpertPolicy(presets.make("vpm", self.preset or "cpu"))
+        else:
+            policy = resolve_policy(self.policy)
         console = Console()
-        console.print(f"[bold]mjx-push eval[/] {policy.config.agent}: {spec.episodes} episodes, setting "
-                      f"{spec.setting}, shape {spec.shape} (the first batch includes JIT compilation)")
+        name = f"expert ({self.preset or 'cpu'} action box)" if is_expert else policy.config.agent
+        tau = spec.success_tau or policy.config.env.success_tau
+        console.print(f"[bold]mjx-push eval[/] {name} (JAX, MJX): {self.policy}, {spec.episodes} "
+                      f"episodes, setting {spec.setting}, shape {spec.shape}, success within {100 * tau:g} cm "
+                      "(the first batch includes JIT compilation)")
         res = evaluate(policy, spec)
         s = res["summary"]
-        table = Table(title=f"{policy.config.agent} / {spec.setting} / {spec.shape} ({spec.episodes} episodes)")
-        for col in ("metric", "mean", "SEM"):
-            table.add_column(col, justify="right")
-        for m, label in (("success", "success rate"), ("reward", "mean episode reward"),
-                         ("overshoot", "overshoot corrections"), ("distance", "distance corrections"),
-                         ("start_distance", "object-goal distance at reset (m)"),
-                         ("final_distance", "object-goal distance at the end (m)")):
-            table.add_row(label, f"{s[m]['mean']:.3f}", f"{s[m]['sem']:.3f}")
-        console.print(table)
+        console.print(metrics_table(f"{name} / {spec.setting} / {spec.shape} ({spec.episodes} "
+                                    f"episodes, MJX, success within {100 * tau:g} cm)", s))
         if res["invalid_episodes"]:
             console.print(f"[yellow]{res['invalid_episodes']} episodes hit an invalid simulation state "
-                          "(counted as failures with reward -50)")
-        out = self.out or (self.policy if self.policy.is_dir() else self.policy.parent) / "eval.json"
-        record = {"policy": str(self.policy), "agent": policy.config.agent, "spec": dataclasses.asdict(spec),
+                          f"(counted as failures with reward -{policy.config.env.episode_length})")
+        out = self.out or (Path("outputs/eval-expert.json") if is_expert else
+                           (self.policy if self.policy.is_dir() else self.policy.parent) / "eval.json")
+        record = {"policy": str(self.policy), "agent": name, "spec": dataclasses.asdict(spec),
                   "summary": s, "invalid_episodes": res["invalid_episodes"],
                   "per_episode": {k: np.asarray(v).tolist() for k, v in res["per_episode"].items()}}
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -288,7 +349,7 @@ class Eval:
 @dataclasses.dataclass
 class Reproduce:
     """Train VPM, Stacked, uGRU and eGRU, evaluate each on the difficult case per shape (cylinder,
-    square cuboid, rectangular cuboid) and write a Markdown report with figures (SPEC section 7).
+    square cuboid, rectangular cuboid) and write a Markdown report with figures (docs/task.md section 7).
     Rerunning reuses finished runs and evaluations and resumes interrupted runs."""
 
     budget: Literal["smoke", "cpu", "cpu-long", "reference", "paper"] = "smoke"
@@ -327,7 +388,9 @@ def main(argv: list[str] | None = None) -> int:
 
     commands.update(export_commands)
     try:
-        cmd = tyro.extras.subcommand_cli_from_dict(commands, args=argv, prog="mjx-push")
+        # Boolean options are single flags (--resume, --no-progress), not --x / --no-x pairs.
+        cmd = tyro.extras.subcommand_cli_from_dict(commands, args=argv, prog="mjx-push",
+                                                   config=(tyro.conf.FlagCreatePairsOff,))
         cmd.run()
     except ValueError as e:  # configuration errors name the field: show them without a traceback
         print(f"mjx-push: error: {e}", file=sys.stderr)

@@ -1,4 +1,4 @@
-"""Typed, frozen configuration of the SAC + HER learner (SPEC section 6).
+"""Typed, frozen configuration of the SAC + HER learner (docs/task.md section 6).
 
 Field defaults are the reference's learner (one environment, 29,000 environment steps, no
 normalisation, symmetric critics, no demonstrations), so a record written before a field existed

@@ -1,4 +1,4 @@
-"""Train the mask autoencoder (SPEC section 5) on masks generated on device, and report its
+"""Train the mask autoencoder (docs/task.md section 5) on masks generated on device, and report its
 reconstruction quality on held-out masks (mean IoU of reconstructions thresholded at p = 0.5).
 
 Every batch is fresh (masks are cheap to draw analytically), so there is no dataset to overfit; the

@@ -1,4 +1,4 @@
-"""The paper's evaluation protocol on the MJX scene (SPEC section 7).
+"""The paper's evaluation protocol on the MJX scene (docs/task.md section 7).
 
 Deterministic policy; `episodes` test episodes per setting and shape, drawn from fixed seeds that do
 not depend on the policy, so every agent meets the same objects, starts and goals: episode i's object
@@ -26,7 +26,7 @@ import numpy as np
 
 from mjx_push import encoder as enc
 from mjx_push import expert as expert_mod
-from mjx_push import objects
+from mjx_push import objects, scene
 from mjx_push.env import EnvConfig, PushEnv
 from train.networks import make_networks
 from train.presets import RunConfig
@@ -39,6 +39,30 @@ METRICS = ("success", "reward", "overshoot", "distance")  # the paper's
 # episode ends within 1 cm, every reward is -50). Invalid episodes count as no progress.
 DISTANCE_METRICS = ("start_distance", "final_distance")
 DIFFICULT = dict(mass=(0.001, 0.01), friction=(0.2, 0.3), min_height=0.052)
+# `mjx-push eval` (MJX) and `mjx-push deploy` (CPU MuJoCo) print the same table (train.eval_options holds
+# their shared options).
+METRIC_LABELS = {
+    "success": "success rate",
+    "reward": "mean episode reward",
+    "overshoot": "overshoot corrections",
+    "distance": "distance corrections",
+    "start_distance": "object-goal distance at reset (m)",
+    "final_distance": "object-goal distance at the end (m)",
+}
+
+
+def metrics_table(title: str, summary: dict):
+    """A rich Table of `summarize`'s output: each metric's mean, SEM and episode count."""
+    from rich.table import Table
+
+    table = Table(title=title)
+    for col in ("metric", "mean", "SEM", "n"):
+        table.add_column(col, justify="right")
+    for key, label in METRIC_LABELS.items():
+        if key in summary:
+            m = summary[key]
+            table.add_row(label, f"{m['mean']:.3f}", f"{m['sem']:.3f}", str(m["n"]))
+    return table
 
 
 @dataclasses.dataclass(frozen=True)
@@ -93,8 +117,31 @@ def summarize(per_episode: dict) -> dict:
     """{metric: {"mean", "sem", "n"}} over per-episode arrays: the paper's METRICS, and the
     DISTANCE_METRICS present."""
     keys = METRICS + tuple(k for k in DISTANCE_METRICS if k in per_episode)
-    return {k: {"mean": float(np.mean(per_episode[k])), "sem": sem(per_episode[k]), "n": int(len(per_episode[k]))}
-            for k in keys}
+    # float64 whatever the input: a fresh evaluation (float32 arrays) and one read back from JSON (Python
+    # floats) of the same episodes must give the same summary.
+    return {k: {"mean": float(np.mean(np.asarray(per_episode[k], np.float64))), "sem": sem(per_episode[k]),
+                "n": int(len(per_episode[k]))} for k in keys}
+
+
+def episode_geom_type(shape: str, i: int) -> str:
+    """The geom type of episode `i` under shape filter `shape` ("all": even cuboids, odd cylinders)."""
+    if shape == "all":
+        return ("box", "cylinder")[i % 2]
+    return "cylinder" if shape == "cylinder" else "box"
+
+
+def episode_objects(spec: EvalSpec, base: objects.ObjectConfig, geom_type: str, indices: np.ndarray):
+    """(ObjectParams, environment keys) of episodes `indices` (all of `geom_type`): episode i's object,
+    start and goal are drawn from fold_in(PRNGKey(spec.seed), i) alone, so every policy and both
+    simulators (MJX here, CPU MuJoCo in `mjx-push deploy`) meet the same episodes."""
+    cfg = dataclasses.replace(spec.object_config(base), shape=_filter(spec.shape, geom_type))
+    home = jnp.asarray(scene.home_flange_pos()[:2], jnp.float32)
+    base_key = jax.random.PRNGKey(spec.seed)
+    keys = jax.vmap(lambda i: jax.random.fold_in(base_key, i))(jnp.asarray(indices))
+    k_obj = jax.vmap(lambda k: jax.random.fold_in(k, 0))(keys)
+    k_env = jax.vmap(lambda k: jax.random.fold_in(k, 1))(keys)
+    params = jax.vmap(lambda k: objects.sample(k, cfg, geom_type, home))(k_obj)
+    return params, k_env
 
 
 def _geom_types(shape: str) -> tuple[str, ...]:
@@ -191,14 +238,7 @@ class Evaluator:
         return self._fns[geom_type]
 
     def episode_params(self, spec: EvalSpec, geom_type: str, indices: np.ndarray):
-        cfg = dataclasses.replace(spec.object_config(self.env_config.objects), shape=_filter(spec.shape, geom_type))
-        home = self.env(geom_type).home_flange[:2]
-        base = jax.random.PRNGKey(spec.seed)
-        keys = jax.vmap(lambda i: jax.random.fold_in(base, i))(jnp.asarray(indices))
-        k_obj = jax.vmap(lambda k: jax.random.fold_in(k, 0))(keys)
-        k_env = jax.vmap(lambda k: jax.random.fold_in(k, 1))(keys)
-        params = jax.vmap(lambda k: objects.sample(k, cfg, geom_type, home))(k_obj)
-        return params, k_env
+        return episode_objects(spec, self.env_config.objects, geom_type, indices)
 
     def evaluate(self, policy: Policy, spec: EvalSpec) -> dict:
         """Per-episode arrays (in episode order) and their summary."""
@@ -234,21 +274,30 @@ class Evaluator:
                 "recorded": sorted(recorded, key=lambda r: r["episode"])}
 
 
-def evaluator_for(env_config: EnvConfig, agent_config, batch: int) -> Evaluator:
-    """A shared Evaluator per (environment, agent network, batch): compiled once per process. Keyed by
-    what changes the compiled code only: evaluations draw their own objects (uniformly, whatever the
-    training sampler), and uGRU and eGRU share one network."""
+def evaluator_for(env_config: EnvConfig, agent_config, batch: int,
+                  expert_config: expert_mod.ExpertConfig | None = None) -> Evaluator:
+    """A shared Evaluator per (environment, agent network or expert, batch): compiled once per process.
+    Keyed by what changes compiled code only: evaluations draw their own objects (uniformly, whatever
+    the training sampler), uGRU and eGRU share one network, and the expert needs no network."""
     env = dataclasses.replace(env_config, objects=dataclasses.replace(env_config.objects, mode="uniform"))
-    if agent_config.kind == "egru":
+    if expert_config is not None:
+        agent_config = None
+    elif agent_config.kind == "egru":
         agent_config = dataclasses.replace(agent_config, kind="ugru")
-    return _cached_evaluator(env, agent_config, batch)
+    return _cached_evaluator(env, agent_config, batch, expert_config)
 
 
 @functools.lru_cache(maxsize=8)
-def _cached_evaluator(env_config: EnvConfig, agent_config, batch: int) -> Evaluator:
-    return Evaluator(env_config, agent_config, batch)
+def _cached_evaluator(env_config: EnvConfig, agent_config, batch: int, expert_config) -> Evaluator:
+    return Evaluator(env_config, agent_config, batch, expert_config)
 
 
-def evaluate(policy: Policy, spec: EvalSpec) -> dict:
-    ev = evaluator_for(policy.config.env, policy.config.train.agent, min(spec.batch, spec.episodes))
+def evaluate(policy: Policy | ExpertPolicy, spec: EvalSpec) -> dict:
+    """Evaluate a trained policy (or the scripted expert) under ``spec``, at ``spec.success_tau`` if
+    given, else at the radius the policy trained for."""
+    env = policy.config.env
+    if spec.success_tau is not None:
+        env = dataclasses.replace(env, success_tau=spec.success_tau)
+    expert = policy.config.expert if isinstance(policy, ExpertPolicy) else None
+    ev = evaluator_for(env, policy.config.train.agent, min(spec.batch, spec.episodes), expert)
     return ev.evaluate(policy, spec)

@@ -199,7 +199,7 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
     learning_iterations = max(0, loop.num_iterations - first_learning_iteration + 1)
     total_updates = learning_iterations * loop.updates_per_iteration
     update = make_update(config.agent, sac_cfg, action_dim, total_updates=max(total_updates, 1), nets=nets)
-    # Evaluation always uses the same episodes (SPEC section 7), derived from the config's seed.
+    # Evaluation always uses the same episodes (docs/task.md section 7), derived from the config's seed.
     eval_key = jax.random.fold_in(jax.random.PRNGKey(loop.seed), 0x5E1EC7)
 
     def init(key: jax.Array) -> TrainState:

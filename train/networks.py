@@ -1,4 +1,4 @@
-"""Actor and twin critic for VPM, Stacked and GRU agents (SPEC section 6), in flax.linen.
+"""Actor and twin critic for VPM, Stacked and GRU agents (docs/task.md section 6), in flax.linen.
 
 Two views of the same networks:
 
@@ -12,7 +12,7 @@ Two views of the same networks:
   order the arithmetic differently for the two shapes; the tests allow 1e-6).
 
 Observation per step: ``ee_xy (2)``, ``z_obj (6)``, ``z_goal (6)``; flat order [ee_xy, z_obj, z_goal].
-The GRU input per step is [z_obj_t, z_goal, ee_xy_t] (SPEC section 6; exported weights assume it).
+The GRU input per step is [z_obj_t, z_goal, ee_xy_t] (docs/task.md section 6; exported weights assume it).
 
 Options (``AgentConfig``): with ``obs_norm`` every network first standardises its inputs with running
 statistics held in its variables' "norm" collection (``ee_xy`` and the latent ``z``, shared by the

@@ -23,12 +23,14 @@ sampling.
 from __future__ import annotations
 
 import dataclasses
+import json
 from typing import Literal
 
 from mjx_push import objects
 from mjx_push.controller import ControllerConfig
 from mjx_push.env import EnvConfig
 from mjx_push.expert import ExpertConfig
+from train import configio
 from train.config import AGENT_KINDS, AgentConfig, DemoConfig, LoopConfig, ReplayConfig, SACConfig, TrainConfig
 
 Preset = Literal["smoke", "cpu", "cpu-long", "reference", "paper"]
@@ -90,12 +92,12 @@ _PRESETS = {
                             eval_every_env_steps=800, eval_episodes=8),
                   sac=dict(batch_size=64, bc_batch_size=32, **_SAC_FEATURES), replay=50_000, agent=_AGENT,
                   demo=_DEMO, env=ACTION_BOX),
-    "cpu": dict(loop=dict(num_envs=32, total_env_steps=64_000, warmup_env_steps=4_800, utd=0.25,
-                          eval_every_env_steps=8_000, eval_episodes=100),
+    "cpu": dict(loop=dict(num_envs=32, total_env_steps=32_000, warmup_env_steps=4_800, utd=0.25,
+                          eval_every_env_steps=16_000, eval_episodes=100),
                 sac=dict(batch_size=256, **_SAC_FEATURES), replay=300_000, agent=_AGENT, demo=_DEMO,
                 env=ACTION_BOX),
-    "cpu-long": dict(loop=dict(num_envs=32, total_env_steps=384_000, warmup_env_steps=4_800, utd=0.25,
-                               eval_every_env_steps=32_000, eval_episodes=100),
+    "cpu-long": dict(loop=dict(num_envs=32, total_env_steps=240_000, warmup_env_steps=4_800, utd=0.25,
+                               eval_every_env_steps=24_000, eval_episodes=100),
                      sac=dict(batch_size=256, **_SAC_FEATURES), replay=1_000_000, agent=_AGENT, demo=_DEMO,
                      env=ACTION_BOX),
     "reference": dict(loop=dict(num_envs=10, total_env_steps=29_000, warmup_env_steps=10_000, utd=1.0,
@@ -138,3 +140,36 @@ def override(cfg: RunConfig, **fields) -> RunConfig:
             raise ValueError(f"unknown setting {dotted!r}")
         train = dataclasses.replace(train, **{section: dataclasses.replace(sub, **{name: value})})
     return dataclasses.replace(cfg, train=train)
+
+
+def parse_overrides(items) -> dict:
+    """["train.sac.bc_weight=0", "env.substeps=[10,600]"] -> {dotted path: value}; values are JSON
+    (numbers, true/false, lists, quoted strings) or else taken as plain strings."""
+    out = {}
+    for item in items:
+        path, sep, text = item.partition("=")
+        if not sep or not path:
+            raise ValueError(f"--set takes PATH=VALUE (e.g. train.sac.bc_weight=0), got {item!r}")
+        try:
+            out[path] = json.loads(text)
+        except json.JSONDecodeError:
+            out[path] = text
+    return out
+
+
+def with_overrides(cfg: RunConfig, overrides: dict) -> RunConfig:
+    """``cfg`` with the fields at dotted paths (``train.sac.bc_weight``, ``env.controller.gain``, ...)
+    replaced and validated once all are set, since some must agree (the environment's and the
+    learner's success radius). Raises ValueError naming an unknown path or a bad value."""
+    d = configio.to_dict(cfg)
+    for dotted, value in overrides.items():
+        *parents, leaf = dotted.split(".")
+        node = d
+        for part in parents:
+            if not isinstance(node.get(part), dict):
+                raise ValueError(f"--set {dotted}: unknown setting (no section {part!r})")
+            node = node[part]
+        if leaf not in node:
+            raise ValueError(f"--set {dotted}: unknown setting (no field {leaf!r})")
+        node[leaf] = value
+    return configio.from_dict(RunConfig, d, "config")

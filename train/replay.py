@@ -1,4 +1,4 @@
-"""On-device ring buffer of whole episodes with HER "future" relabelling (SPEC section 6).
+"""On-device ring buffer of whole episodes with HER "future" relabelling (docs/task.md section 6).
 
 The buffer keeps whole episodes rather than transitions because the GRU agents need the full history
 up to t (and t+1) recomputed with the relabelled goal. Each slot holds one episode of T steps:

@@ -18,7 +18,9 @@ run needs to continue: resuming replays the remaining batches exactly (bitwise o
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import io
 import json
 import time
 from dataclasses import dataclass
@@ -32,7 +34,9 @@ import orbax.checkpoint as ocp
 from flax import serialization
 
 from mjx_push import encoder as enc
-from train import configio
+from train import atomic, configio
+from train.interrupt import StopOnSignal
+from train.run_lock import RunLock
 from train.loop import EnvAdapter, Runner, TrainState, make_train
 from train.loop import train as train_loop
 from train.presets import RunConfig
@@ -67,7 +71,10 @@ class Checkpoints:
 
     def __init__(self, directory: Path, keep: int = 2):
         self.directory = Path(directory).absolute()
-        options = ocp.CheckpointManagerOptions(max_to_keep=keep, enable_async_checkpointing=False, create=True)
+        # A checkpoint is written into a temporary directory and renamed when complete, so a kill mid-write
+        # leaves the previous checkpoint as the latest; cleanup removes such leftovers on the next start.
+        options = ocp.CheckpointManagerOptions(max_to_keep=keep, enable_async_checkpointing=False, create=True,
+                                               cleanup_tmp_directories=True)
         self.manager = ocp.CheckpointManager(self.directory, options=options)
 
     def save(self, state: TrainState, config: RunConfig, extra: dict) -> int:
@@ -114,7 +121,7 @@ def save_policy(path: Path, config: RunConfig, actor_params, encoder_params, sco
     """`path`.msgpack (actor + encoder params) and `path`.json (what they are)."""
     path = Path(path)
     blob = {"actor": jax.device_get(actor_params), "encoder": jax.device_get(encoder_params)}
-    path.with_suffix(".msgpack").write_bytes(serialization.msgpack_serialize(blob))
+    atomic.write_bytes(path.with_suffix(".msgpack"), serialization.msgpack_serialize(blob))
     record = {
         "format": POLICY_FORMAT,
         "version": POLICY_VERSION,
@@ -124,7 +131,7 @@ def save_policy(path: Path, config: RunConfig, actor_params, encoder_params, sco
         "encoder_record": {k: v for k, v in enc.load_record(config.encoder and Path(config.encoder)).items()
                            if k != "curve"},
     }
-    path.with_suffix(".json").write_text(json.dumps(record, indent=2) + "\n")
+    atomic.write_text(path.with_suffix(".json"), json.dumps(record, indent=2) + "\n")
 
 
 @dataclass(frozen=True)
@@ -198,10 +205,12 @@ class MetricLog:
         new = [k for k in metrics if k not in self.columns]
         self.columns += new
         self.rows.append(metrics)
-        with self.csv_path.open("w", newline="") as f:  # rewritten: columns may grow (evaluations)
-            w = csv.DictWriter(f, fieldnames=self.columns)
-            w.writeheader()
-            w.writerows(self.rows)
+        # Rewritten whole (columns may grow at evaluations), atomically: a kill mid-write keeps the old log.
+        out = io.StringIO(newline="")
+        w = csv.DictWriter(out, fieldnames=self.columns)
+        w.writeheader()
+        w.writerows(self.rows)
+        atomic.write_text(self.csv_path, out.getvalue())
         step = int(metrics["env_steps"])
         for k, v in metrics.items():
             if k != "env_steps" and isinstance(v, (int, float)) and v == v:
@@ -213,22 +222,55 @@ class MetricLog:
 
 
 # --- the run -----------------------------------------------------------------------------------------
+def _check_same_config(run_dir: Path, cfg: RunConfig) -> None:
+    saved = load_config(run_dir / "config.json")
+    diff = configio.differences(config_dict(saved), config_dict(cfg))
+    if diff:
+        raise ValueError(f"--resume: {run_dir} was started with a different configuration: " + "; ".join(diff[:6]))
+
+
 def prepare_dir(run_dir: Path, cfg: RunConfig, resume: bool) -> None:
     run_dir = Path(run_dir)
-    has_ckpt = (run_dir / "checkpoints").is_dir() and any((run_dir / "checkpoints").iterdir())
+    has_ckpt = any(p.is_dir() and p.name.isdigit() for p in (run_dir / "checkpoints").glob("*"))
     if resume:
         if not has_ckpt:
             raise ValueError(f"--resume: no checkpoint in {run_dir / 'checkpoints'}")
-        saved = load_config(run_dir / "config.json")
-        diff = configio.differences(config_dict(saved), config_dict(cfg))
-        if diff:
-            raise ValueError(f"--resume: {run_dir} was started with a different configuration: " + "; ".join(diff[:6]))
+        _check_same_config(run_dir, cfg)
     else:
         if has_ckpt or (run_dir / "metrics.csv").exists():
             raise ValueError(f"run directory {run_dir} already holds a run; pass --resume to continue it or "
                              "choose another --run-dir")
         run_dir.mkdir(parents=True, exist_ok=True)
-        (run_dir / "config.json").write_text(json.dumps(config_dict(cfg), indent=2) + "\n")
+        atomic.write_text(run_dir / "config.json", json.dumps(config_dict(cfg), indent=2) + "\n")
+
+
+class RunFinished(ValueError):
+    """`--resume` of a run that has already finished: nothing to do (the message says so)."""
+
+
+def finished_summary(run_dir: Path, cfg: RunConfig) -> dict | None:
+    """The summary of `run_dir` if its run has finished (summary written, last checkpoint at the end)."""
+    run_dir = Path(run_dir)
+    path = run_dir / "summary.json"
+    if not path.is_file():
+        return None
+    loop = cfg.train.loop
+    steps = [int(p.name) for p in (run_dir / "checkpoints").glob("*") if p.is_dir() and p.name.isdigit()]
+    if max(steps, default=-1) < loop.num_iterations * loop.env_steps_per_iteration:
+        return None
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError:
+        return None
+
+
+def check_not_finished(run_dir: Path, cfg: RunConfig) -> None:
+    """Raise RunFinished if `run_dir`'s run of `cfg` has finished (before anything is opened or written)."""
+    done = finished_summary(run_dir, cfg)
+    if done is not None:
+        _check_same_config(run_dir, cfg)  # a different configuration is the more useful message
+        raise RunFinished(f"{run_dir} has finished ({done.get('env_steps', '?')} env steps, summary.json): "
+                          "--resume has nothing to continue; train longer in a new --run-dir.")
 
 
 def run(
@@ -241,13 +283,29 @@ def run(
     stop_after: int | None = None,
     on_iteration: Callable[[dict], None] | None = None,
     substep_chunk: int | None = None,
+    stop_on_signal: bool = False,
 ) -> tuple[dict, TrainState]:
     """Train `cfg` in `run_dir`. Checkpoints after every `checkpoint_every` batches, at every
     evaluation and at the end. `stop_after`: stop (as if killed) after that many batches of this call.
     `adapter` replaces the MJX task (tests use the toy task). `substep_chunk`: substeps per tick of the
     MJX task's scheduler (0: lockstep; None: the default); it changes speed, not episodes, so it is not
-    part of the run's configuration. Returns (summary, final state)."""
+    part of the run's configuration. `stop_on_signal`: SIGINT / SIGTERM stop the run after the current
+    batch with a checkpoint (`train.interrupt`); the summary then holds "interrupted_at_env_steps" and
+    "signal". One process at a time may run in a directory (`train.run_lock`); resuming a finished run
+    raises `RunFinished` and changes nothing. Returns (summary, final state)."""
     run_dir = Path(run_dir)
+    if resume:
+        check_not_finished(run_dir, cfg)
+        if not run_dir.is_dir():
+            raise ValueError(f"--resume: no checkpoint in {run_dir / 'checkpoints'} ({run_dir} does not exist)")
+    else:
+        run_dir.mkdir(parents=True, exist_ok=True)
+    with RunLock(run_dir), (StopOnSignal() if stop_on_signal else contextlib.nullcontext()) as stop:
+        return _run_locked(cfg, run_dir, resume, adapter, checkpoint_every, stop_after, on_iteration,
+                           substep_chunk, stop)
+
+
+def _run_locked(cfg, run_dir, resume, adapter, checkpoint_every, stop_after, on_iteration, substep_chunk, stop):
     prepare_dir(run_dir, cfg, resume)
     encoder_params = enc.load(cfg.encoder and Path(cfg.encoder))
     if adapter is None:
@@ -284,16 +342,20 @@ def run(
         clock["done"] += 1
         i = int(ts.env_steps) // loop.env_steps_per_iteration - 1
         last = i == loop.num_iterations - 1
-        if last or "eval/mean_reward" in metrics or (i + 1) % checkpoint_every == 0:
+        interrupted = stop is not None and stop.requested is not None
+        if last or interrupted or "eval/mean_reward" in metrics or (i + 1) % checkpoint_every == 0:
             ckpts.save(ts, cfg, {"history_rows": len(log.rows)})
-        return stop_after is not None and clock["done"] >= stop_after and not last
+        return (interrupted or (stop_after is not None and clock["done"] >= stop_after)) and not last
 
     try:
         state, _ = train_loop(None, cfg.train, adapter, callback=on_batch, state=state, runner=runner)
     finally:
         log.close()
     if int(state.env_steps) < loop.num_iterations * loop.env_steps_per_iteration:
-        return {"stopped_at_env_steps": int(state.env_steps)}, state
+        stopped = {"stopped_at_env_steps": int(state.env_steps)}
+        if stop is not None and stop.requested is not None:
+            stopped.update(interrupted_at_env_steps=int(state.env_steps), signal=stop.requested)
+        return stopped, state
     first_call_s = clock["first"]
 
     scores = {
@@ -319,7 +381,7 @@ def run(
         "resumed_from_env_steps": resumed_from,
         "run_dir": str(run_dir),
     }
-    (run_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    atomic.write_text(run_dir / "summary.json", json.dumps(summary, indent=2) + "\n")
     return summary, state
 
 

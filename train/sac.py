@@ -1,4 +1,4 @@
-"""Soft actor-critic losses and update (SPEC section 6), following Stable-Baselines3's SAC.
+"""Soft actor-critic losses and update (docs/task.md section 6), following Stable-Baselines3's SAC.
 
 One update, in SB3's order: the critic step (target from the target critics at s_{t+1} with a fresh
 action from the current actor), then the actor step against the *updated* critics, then the entropy
