@@ -86,7 +86,8 @@ def main(argv=None):
                     help="override for every rung, e.g. train.sac.bc_weight=0 (values parsed as JSON)")
     ap.add_argument("--tag", default="", help="names this variant in run directories and the JSON")
     ap.add_argument("--total-env-steps", type=int, default=None, help="shorter budget than the rung's preset")
-    ap.add_argument("--eval-episodes", type=int, default=100)
+    ap.add_argument("--eval-episodes", type=int, default=100,
+                    help="episodes per final scoring (0: skip it, keep the learning curve)")
     ap.add_argument("--out", type=Path, default=Path("outputs/ladder"))
     args = ap.parse_args(argv)
     try:
@@ -121,12 +122,13 @@ def main(argv=None):
                    "overrides": {**RUNGS[name][2], **extra}, "env_steps": summary["env_steps"],
                    "updates": summary["updates"], "train_wall_s": summary["wall_s"],
                    "curve": curve(run_dir)}
-            t_eval = time.perf_counter()
-            for which in ("best_policy", "final_policy"):
-                row[which] = score(run_dir, which, args.eval_episodes)
-            # The paper's difficult case (light, slippery, tall objects), for the best actor.
-            row["best_policy_difficult"] = score(run_dir, "best_policy", args.eval_episodes, "difficult")
-            row["eval_wall_s"] = time.perf_counter() - t_eval
+            if args.eval_episodes:
+                t_eval = time.perf_counter()
+                for which in ("best_policy", "final_policy"):
+                    row[which] = score(run_dir, which, args.eval_episodes)
+                # The paper's difficult case (light, slippery, tall objects), for the best actor.
+                row["best_policy_difficult"] = score(run_dir, "best_policy", args.eval_episodes, "difficult")
+                row["eval_wall_s"] = time.perf_counter() - t_eval
             results.append(row)
 
     table = Table(title=f"learning ladder{suffix} ({args.eval_episodes} standard episodes per actor)")
@@ -134,6 +136,8 @@ def main(argv=None):
         table.add_column(col, justify="right")
     for r in results:
         for which in ("best_policy", "final_policy", "best_policy_difficult"):
+            if which not in r:  # --eval-episodes 0: the learning curve only
+                continue
             s = r[which]
             label = "best (difficult)" if which.endswith("difficult") else which.split("_")[0]
             table.add_row(r["rung"] + suffix, str(r["seed"]), f"{r['env_steps']:,}", f"{r['train_wall_s'] / 60:.1f} min",
