@@ -247,6 +247,19 @@ def test_success_tau_sets_the_environment_and_the_relabelling_radius():
     assert Train(agent="vpm", preset="reference").config().env.success_tau == 0.01
 
 
+def test_set_overrides_any_field_by_its_config_path(capsys):
+    from train.cli import Train
+
+    cfg = Train(agent="vpm", preset="cpu", set=("train.sac.bc_weight=0", "env.substeps=[10,600]",
+                                                "env.controller.gain=1.0", 'train.agent.critic_obs="actor"')).config()
+    assert cfg.train.sac.bc_weight == 0 and cfg.env.substeps == (10, 600) and cfg.env.controller.gain == 1.0
+    assert cfg.train.agent.critic_obs == "actor" and cfg.train.agent.obs_norm  # the rest stays the preset's
+    for bad, says in (("train.sac.bcweight=0", "no field 'bcweight'"), ("trian.sac.lr=1", "no section 'trian'"),
+                      ("train.sac.bc_weight=-1", "bc_weight must be"), ("train.sac.bc_weight", "PATH=VALUE")):
+        assert cli_main(["train", "--set", bad, "--run-dir", "/nonexistent/never"]) == 2
+        assert says in capsys.readouterr().err, bad
+
+
 def test_progress_lines_report_success_reward_and_final_distance():
     import io
 
