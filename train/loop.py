@@ -192,7 +192,7 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
     stored_priv_dim = adapter.priv_dim if privileged else 0
     # Behaviour cloning learns from the expert's noise-free action at every stored step: on
     # demonstrations only, or (demo.label_all) on the agent's own steps too.
-    store_labels = demo_cfg.enabled and adapter.expert is not None
+    store_labels = demo_cfg.enabled
 
     # Iterations that run updates: those ending at or after the warm-up (for the lr decay horizon).
     first_learning_iteration = max(1, -(-loop.warmup_env_steps // loop.env_steps_per_iteration))

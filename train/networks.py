@@ -160,8 +160,8 @@ ACTOR_NORM_GROUPS = {"ee_xy": 2, "z": 6}
 NORM_MIN_STD = 1e-3
 
 
-def critic_norm_groups(agent: AgentConfig, priv_dim: int) -> dict[str, int]:
-    return {"priv": priv_dim, "goal": 2} if agent.critic_obs == "privileged" else dict(ACTOR_NORM_GROUPS)
+def critic_norm_groups(critic_obs: str, priv_dim: int) -> dict[str, int]:
+    return {"priv": priv_dim, "goal": 2} if critic_obs == "privileged" else dict(ACTOR_NORM_GROUPS)
 
 
 class Normalizer(nn.Module):
@@ -236,7 +236,7 @@ class PrivilegedQNetwork(nn.Module):
 
     @nn.compact
     def __call__(self, episode, idx, action):
-        norm = Normalizer(critic_norm_groups(self.agent, self.priv_dim) if self.agent.obs_norm else {},
+        norm = Normalizer(critic_norm_groups(self.agent.critic_obs, self.priv_dim) if self.agent.obs_norm else {},
                           self.agent.norm_clip, name="norm")
         priv = take_steps(episode["priv"], idx)  # [B, K, P]
         goal = jnp.broadcast_to(episode["goal_xy"][:, None], priv.shape[:-1] + (2,))

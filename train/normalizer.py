@@ -18,7 +18,7 @@ import flax.struct
 import jax
 import jax.numpy as jnp
 
-from train.networks import NORM_MIN_STD
+from train.networks import ACTOR_NORM_GROUPS, NORM_MIN_STD, critic_norm_groups
 
 
 @flax.struct.dataclass
@@ -61,11 +61,9 @@ def groups_from_episodes(episodes: dict, critic_obs: str) -> dict[str, tuple[jax
 
 
 def init_stats(critic_obs: str, priv_dim: int) -> dict[str, RunningStats]:
-    stats = {"ee_xy": RunningStats.zeros(2), "z": RunningStats.zeros(6)}
-    if critic_obs == "privileged":
-        stats["priv"] = RunningStats.zeros(priv_dim)
-        stats["goal"] = RunningStats.zeros(2)
-    return stats
+    """Empty statistics of every group the actor and the critics standardise."""
+    groups = {**ACTOR_NORM_GROUPS, **critic_norm_groups(critic_obs, priv_dim)}
+    return {name: RunningStats.zeros(dim) for name, dim in groups.items()}
 
 
 def update_stats(stats: dict[str, RunningStats], episodes: dict, critic_obs: str) -> dict[str, RunningStats]:

@@ -23,7 +23,7 @@ from typing import Callable
 
 import numpy as np
 
-from train import presets
+from train import atomic, presets
 from train import run as run_mod
 from train.evaluate import DISTANCE_METRICS, METRICS, EvalSpec, ExpertPolicy, evaluate, evaluator_for, summarize
 from train.report import read_training, write_report
@@ -76,10 +76,7 @@ def evaluate_run(cfg: presets.RunConfig, run_dir: Path, spec: EvalSpec, log: Cal
     fingerprint = policy_fingerprint(run_dir / name)
     spec_record = dataclasses.asdict(spec)
     if path.is_file():
-        try:
-            cached = json.loads(path.read_text())
-        except json.JSONDecodeError:
-            cached = {}
+        cached = _read_cache(path)
         per = cached.get("per_episode", {})
         if (cached.get("policy_sha256") == fingerprint and cached.get("spec") == json.loads(json.dumps(spec_record))
                 and all(k in per for k in METRICS + DISTANCE_METRICS)):  # older caches lack the distances
@@ -91,10 +88,16 @@ def evaluate_run(cfg: presets.RunConfig, run_dir: Path, spec: EvalSpec, log: Cal
               "summary": res["summary"],
               "invalid_episodes": res["invalid_episodes"], "wall_s": time.perf_counter() - t0,
               "per_episode": {k: np.asarray(v).tolist() for k, v in res["per_episode"].items()}}
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(record) + "\n")
-    tmp.replace(path)  # atomic: a killed evaluation leaves no half-written cache
+    atomic.write_text(path, json.dumps(record) + "\n")  # a killed evaluation leaves no half-written cache
     return res["summary"]
+
+
+def _read_cache(path: Path) -> dict:
+    """A cached evaluation's record; {} when missing or damaged (it is then recomputed)."""
+    try:
+        return json.loads(path.read_text())
+    except (FileNotFoundError, json.JSONDecodeError):
+        return {}
 
 
 def expert_job(budget: str, out: Path, episodes: int, shapes: tuple[str, ...], setting: str,
@@ -109,17 +112,15 @@ def expert_job(budget: str, out: Path, episodes: int, shapes: tuple[str, ...], s
         spec = EvalSpec(setting=setting, shape=shape, episodes=episodes, batch=min(episodes, 20))
         path = Path(out) / "expert" / f"eval-{spec.setting}-{spec.shape}-{spec.episodes}.json"
         want = {"spec": json.loads(json.dumps(dataclasses.asdict(spec))), "settings": key}
-        cached = json.loads(path.read_text()) if path.is_file() else {}
+        cached = _read_cache(path)
         if {k: cached.get(k) for k in want} == want:
             log(f"reusing evaluation {path}")
             summaries[shape] = summarize({k: np.asarray(v) for k, v in cached["per_episode"].items()})
             continue
         res = evaluate(ExpertPolicy(cfg), spec)
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(".tmp")
-        tmp.write_text(json.dumps({**want, "summary": res["summary"], "per_episode": {
+        atomic.write_text(path, json.dumps({**want, "summary": res["summary"], "per_episode": {
             k: np.asarray(v).tolist() for k, v in res["per_episode"].items()}}) + "\n")
-        tmp.replace(path)
         summaries[shape] = res["summary"]
         log(f"expert {shape}: success {summaries[shape]['success']['mean']:.2f}")
     return summaries

@@ -392,9 +392,13 @@ def latest_state(run_dir: Path, cfg: RunConfig, adapter: EnvAdapter | None = Non
 
 
 def _dummy_adapter(cfg: RunConfig) -> EnvAdapter:
-    # make_train only needs the adapter to build rollouts, which restoring never calls, and the width of
-    # the pushing scene's ground-truth state (the privileged critic's input).
+    # make_train only needs the adapter to build rollouts, which restoring never calls, the width of the
+    # pushing scene's ground-truth state (the privileged critic's input) and whether it has an expert
+    # (demonstrations: the replay buffer then holds the expert's labels).
     from train.push_task import PRIV_DIM
 
-    return EnvAdapter(reset=None, step=None, success_tau=cfg.env.success_tau, priv_dim=PRIV_DIM)
+    def expert(step_obs, info):
+        raise RuntimeError("a restored state's adapter cannot roll out")
+
+    return EnvAdapter(reset=None, step=None, success_tau=cfg.env.success_tau, priv_dim=PRIV_DIM, expert=expert)
 
