@@ -22,6 +22,7 @@ import contextlib
 import csv
 import io
 import json
+import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -72,9 +73,13 @@ class Checkpoints:
     def __init__(self, directory: Path, keep: int = 2):
         self.directory = Path(directory).absolute()
         # A checkpoint is written into a temporary directory and renamed when complete, so a kill mid-write
-        # leaves the previous checkpoint as the latest; cleanup removes such leftovers on the next start.
+        # leaves the previous checkpoint as the latest; such leftovers are removed here, before the manager
+        # starts. (Orbax's own cleanup runs in a background thread: two managers of one directory in a
+        # process, e.g. a check of the latest step and then a resume, raced to delete the same folder.)
+        for leftover in self.directory.glob("*.orbax-checkpoint-tmp*"):
+            shutil.rmtree(leftover, ignore_errors=True)
         options = ocp.CheckpointManagerOptions(max_to_keep=keep, enable_async_checkpointing=False, create=True,
-                                               cleanup_tmp_directories=True)
+                                               cleanup_tmp_directories=False)
         self.manager = ocp.CheckpointManager(self.directory, options=options)
 
     def save(self, state: TrainState, config: RunConfig, extra: dict) -> int:
