@@ -9,6 +9,10 @@ filter "any" the first ceil(N/2) environments hold cuboids and the rest cylinder
 probability 1/2 per environment slot as in the paper; "cylinder" / "cuboid" / "square" / "rectangular"
 put all N in one group. Concatenated outputs (observations, rewards, info) list the box group first.
 
+Devices: each group is split evenly over the backend's devices (`mjx_push.devices`; on a CPU the
+host devices of `mjx_push.xla`, one per core), so the environments of one batch run on every core.
+`max_devices=1` keeps the whole batch on one device.
+
 Utilisation: in `step`, a vmapped `while_loop` runs until the slowest environment of its group has
 spent its a_s substeps, the others standing still (masked). `utilisation(a_s)` gives the useful
 fraction. `begin` / `advance` / `finish` / `ready` expose the three phases of `PushEnv`'s step per
@@ -23,6 +27,7 @@ import jax.numpy as jnp
 from brax.envs.base import State
 from flax import struct
 
+from mjx_push import devices
 from mjx_push.env import EnvConfig, PushEnv
 
 
@@ -59,9 +64,10 @@ class BatchState:
 
 class PushBatch:
     """`num_envs` environments under `config`; `reset(key)` and `step(state, actions)` are pure and
-    jittable (wrap them in `jax.jit` yourself, or use `jit_reset` / `jit_step`)."""
+    jittable (wrap them in `jax.jit` yourself, or use `jit_reset` / `jit_step`). Each shape group is
+    split over up to `max_devices` devices (None: all of the default backend's)."""
 
-    def __init__(self, config: EnvConfig = EnvConfig(), num_envs: int = 8):
+    def __init__(self, config: EnvConfig = EnvConfig(), num_envs: int = 8, max_devices: int | None = None):
         if not isinstance(num_envs, int) or num_envs < 1:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
         shapes = config.objects.shapes()
@@ -79,20 +85,22 @@ class PushBatch:
             [jnp.full(n, i, jnp.int32) for i, n in enumerate(counts)]
         )  # index into self.geom_types, per environment
         self.geom_types = shapes
+        self.mesh = devices.env_mesh(counts, max_devices)
+        self.num_devices = 1 if self.mesh is None else self.mesh.size
         self.jit_reset = jax.jit(self.reset)
         self.jit_step = jax.jit(self.step)
 
     def reset(self, key: jax.Array) -> BatchState:
         keys = jax.random.split(key, self.num_envs)
         parts = self._split(keys)
-        return BatchState(tuple(jax.vmap(env.reset)(k) for env, k in zip(self.envs, parts)))
+        return BatchState(tuple(self._run(env.reset, k) for env, k in zip(self.envs, parts)))
 
     def step(self, state: BatchState, actions: jax.Array) -> BatchState:
         actions = jnp.asarray(actions)
         if actions.shape != (self.num_envs, 3):
             raise ValueError(f"actions must have shape ({self.num_envs}, 3), got {actions.shape}")
         parts = self._split(actions)
-        return BatchState(tuple(jax.vmap(env.step)(s, a) for env, s, a in zip(self.envs, state.groups, parts)))
+        return BatchState(tuple(self._run(env.step, s, a) for env, s, a in zip(self.envs, state.groups, parts)))
 
     # --- the three phases, per environment (a scheduler's view of the batch) -----------------------
     def begin(self, state: BatchState, actions: jax.Array, mask: jax.Array) -> BatchState:
@@ -100,11 +108,11 @@ class PushBatch:
         actions = jnp.asarray(actions)
         if actions.shape != (self.num_envs, 3):
             raise ValueError(f"actions must have shape ({self.num_envs}, 3), got {actions.shape}")
-        return self._masked(lambda env, s, a: jax.vmap(env.begin_step)(s, a), state, mask, actions)
+        return self._masked(lambda env, s, a: env.begin_step(s, a), state, mask, actions)
 
     def advance(self, state: BatchState, max_substeps: int) -> BatchState:
         """Run up to `max_substeps` substeps of every environment's current step (spent ones stand still)."""
-        return BatchState(tuple(jax.vmap(lambda s: env.advance(s, max_substeps))(g)
+        return BatchState(tuple(self._run(lambda s: env.advance(s, max_substeps), g)
                                 for env, g in zip(self.envs, state.groups)))
 
     def ready(self, state: BatchState) -> jax.Array:
@@ -113,16 +121,20 @@ class PushBatch:
 
     def finish(self, state: BatchState, mask: jax.Array) -> BatchState:
         """Finish the current step (observation, reward, validity) where `mask` is True."""
-        return self._masked(lambda env, s, _: jax.vmap(env.finish_step)(s), state, mask,
-                            jnp.zeros((self.num_envs,)))
+        return self._masked(lambda env, s, _: env.finish_step(s), state, mask, jnp.zeros((self.num_envs,)))
+
+    def _run(self, fn, *args):
+        """`fn` of one environment, vmapped over a group's environments and split over the devices."""
+        return devices.shard(jax.vmap(fn), self.mesh)(*args)
 
     def _masked(self, fn, state: BatchState, mask: jax.Array, per_env: jax.Array) -> BatchState:
-        groups = []
-        for env, g, m, x in zip(self.envs, state.groups, self._split(mask), self._split(per_env)):
-            new = fn(env, g, x)
-            groups.append(jax.tree.map(lambda n, o: jnp.where(m.reshape(m.shape + (1,) * (n.ndim - 1)), n, o),
-                                       new, g))
-        return BatchState(tuple(groups))
+        def one(env):  # per environment: the phase where masked, the old state elsewhere
+            def f(s, m, x):
+                return jax.tree.map(lambda n, o: jnp.where(m, n, o), fn(env, s, x), s)
+            return f
+
+        return BatchState(tuple(self._run(one(env), g, m, x) for env, g, m, x in
+                                zip(self.envs, state.groups, self._split(mask), self._split(per_env))))
 
     def _split(self, x):
         out, i = [], 0

@@ -1,20 +1,49 @@
-"""CPU XLA flag, applied before JAX initialises its backend.
+"""CPU XLA flags, applied before JAX initialises its backend.
 
-With jaxlib 0.10.x the CPU fusion emitters make MJX kinematics exponentially slow in the depth of
-the kinematic tree (jax-ml/jax#33761, google-deepmind/mujoco#2957): a 7-joint arm runs ~500x slower.
-Importing this module (every package entry point does, first) adds the flag unless the user already
+- `--xla_cpu_use_fusion_emitters=false`: with jaxlib 0.10.x the CPU fusion emitters make MJX
+  kinematics exponentially slow in the depth of the kinematic tree (jax-ml/jax#33761,
+  google-deepmind/mujoco#2957): a 7-joint arm runs ~500x slower.
+- `--xla_force_host_platform_device_count=N`: XLA runs one CPU device's program on one core, so a
+  batch of MJX environments on one device uses one core however many the machine has. With N host
+  devices `mjx_push.batch.PushBatch` splits its environments over them (`mjx_push.devices`) and the
+  physics runs on N cores at once (1.7x on 2 cores, `benchmarks/sim_speed.py`). N is the number of
+  cores this process may use, capped at 8; `MJX_PUSH_CPU_DEVICES=N` overrides it (1 turns the split
+  off). Only the CPU platform is affected: on a GPU machine the environments run on the GPU.
+
+Importing this module (every package entry point does, first) adds each flag unless the user already
 set it either way in their own XLA_FLAGS.
 """
 
 import os
 
 FLAG = "--xla_cpu_use_fusion_emitters"
+DEVICE_FLAG = "--xla_force_host_platform_device_count"
+DEVICES_ENV = "MJX_PUSH_CPU_DEVICES"
+MAX_DEVICES = 8
+
+
+def cpu_device_count() -> int:
+    """Host devices to ask for: `MJX_PUSH_CPU_DEVICES`, else the usable cores (at most 8)."""
+    value = os.environ.get(DEVICES_ENV)
+    if value is not None:
+        try:
+            n = int(value)
+        except ValueError:
+            n = 0
+        if n < 1:
+            raise ValueError(f"{DEVICES_ENV} must be a positive integer, got {value!r}")
+        return n
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, min(cores, MAX_DEVICES))
 
 
 def apply_cpu_flags() -> None:
     flags = os.environ.get("XLA_FLAGS", "")
     if FLAG not in flags:
-        os.environ["XLA_FLAGS"] = (flags + f" {FLAG}=false").strip()
+        flags += f" {FLAG}=false"
+    if DEVICE_FLAG not in flags:
+        flags += f" {DEVICE_FLAG}={cpu_device_count()}"
+    os.environ["XLA_FLAGS"] = flags.strip()
 
 
 apply_cpu_flags()

@@ -105,3 +105,38 @@ def test_bad_input(batch):
         EnvConfig(objects=objects.ObjectConfig(shape="sphere"))
     single = PushBatch(EnvConfig(objects=objects.ObjectConfig(shape="cylinder")), 1)
     assert single.geom_types == ("cylinder",) and single.counts == (1,)
+
+
+def test_the_batch_is_split_over_the_host_devices_and_steps_as_on_one(batch):
+    """mjx_push.xla asks for one CPU device per core (2 here, or MJX_PUSH_CPU_DEVICES); each shape group
+    is split evenly over them, and every environment's trajectory is the one a single device gives."""
+    if len(jax.devices()) < 2:
+        pytest.skip("one device: MJX_PUSH_CPU_DEVICES=1 or a one-core machine, nothing to split")
+    assert batch.num_devices == 2 and batch.mesh.size == 2
+    one = PushBatch(EnvConfig(), 4, max_devices=1)
+    assert one.mesh is None and one.num_devices == 1
+    split, single = rollout(batch, 6, 2), rollout(one, 6, 2)
+    for s in (split[-1].groups[0], split[-1].groups[1]):
+        assert len(s.pipeline_state.qpos.sharding.device_set) == 2  # each group lives on both devices
+    # The same physics, up to float rounding (XLA fuses a batch of 1 and of 2 differently).
+    a, b = split[-1], single[-1]
+    np.testing.assert_allclose(np.asarray(a.cat(lambda s: s.pipeline_state.qpos)),
+                               np.asarray(b.cat(lambda s: s.pipeline_state.qpos)), atol=1e-5)
+    for key in ("object_xy", "ee_xy_true", "substeps", "step"):
+        np.testing.assert_allclose(np.asarray(a.info(key)), np.asarray(b.info(key)), atol=1e-5)
+    np.testing.assert_array_equal(np.asarray(a.reward), np.asarray(b.reward))
+    assert np.mean(np.asarray(a.obs["object_mask"]) != np.asarray(b.obs["object_mask"])) < 0.005
+    moved = np.abs(np.asarray(split[-1].info("ee_xy_true") - split[0].info("ee_xy_true")))
+    assert moved.max() > 1e-4  # the arms moved: the comparison is of a real step
+
+
+def test_device_mesh_splits_every_group_evenly():
+    from mjx_push.devices import env_mesh
+
+    n = len(jax.devices())
+    mesh = env_mesh((16, 16))
+    assert (mesh is None) == (n == 1) and (mesh is None or 16 % mesh.size == 0)
+    assert env_mesh((16, 16), max_devices=1) is None
+    assert env_mesh((3, 5)) is None  # no common divisor above 1: one device
+    if n >= 2:
+        assert env_mesh((2, 4)).size == 2 and env_mesh((7,)) is None

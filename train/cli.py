@@ -387,6 +387,9 @@ def main(argv: list[str] | None = None) -> int:
     from export.cli import COMMANDS as export_commands
 
     commands.update(export_commands)
+    from train import compile_cache
+
+    compile_cache.enable()
     try:
         # Boolean options are single flags (--resume, --no-progress), not --x / --no-x pairs.
         cmd = tyro.extras.subcommand_cli_from_dict(commands, args=argv, prog="mjx-push",

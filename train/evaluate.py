@@ -26,7 +26,7 @@ import numpy as np
 
 from mjx_push import encoder as enc
 from mjx_push import expert as expert_mod
-from mjx_push import objects, scene
+from mjx_push import devices, objects, scene
 from mjx_push.env import EnvConfig, PushEnv
 from train.networks import make_networks
 from train.presets import RunConfig
@@ -192,9 +192,12 @@ class Evaluator:
             return self._fns[geom_type]
         env, nets, T = self.env(geom_type), self.nets, self.env_config.episode_length
         expert_cfg = self.expert_config
+        # The episodes of a batch are split over the devices (one per core on a CPU) like training's.
+        mesh = devices.env_mesh((self.batch,))
+        reset_with, step = devices.shard(jax.vmap(env.reset_with), mesh), devices.shard(jax.vmap(env.step), mesh)
 
         def run(actor_params, encoder_params, params, keys):
-            s = jax.vmap(env.reset_with)(keys, params)
+            s = reset_with(keys, params)
             qpos0 = s.pipeline_state.qpos
             if expert_cfg is not None:
                 def policy(s, carry):
@@ -213,7 +216,7 @@ class Evaluator:
             def body(c, _):
                 s, carry = c
                 action, carry = policy(s, carry)
-                s = jax.vmap(env.step)(s, action)
+                s = step(s, action)
                 return (s, carry), (s.reward, s.pipeline_state.qpos, action, s.info["substeps"])
 
             (s, _), (rewards, qpos, actions, substeps) = jax.lax.scan(body, (s, carry0), None, length=T)

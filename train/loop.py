@@ -96,6 +96,8 @@ class EnvAdapter:
     scheduler: SubstepScheduler | None = None
     priv_dim: int = 0
     expert: Callable[[dict, dict], jax.Array] | None = None
+    # The devices a batch of ``num_envs`` environments is split over (a jax Mesh), or None for one.
+    mesh: Callable[[int], Any] | None = None
 
 
 @flax.struct.dataclass
@@ -125,6 +127,7 @@ class Trainer:
     eval_key: jax.Array
     num_eval_chunks: int
     total_updates: int
+    rollout_mesh: Any = None  # the devices the training rollout's environments are split over
 
 
 def episode_stats(episodes: dict, success_tau: float) -> dict:
@@ -415,6 +418,7 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
         return ts, {**{f"eval/{k}": v for k, v in stats.items()}, "eval/improved": better}
 
     return Trainer(
+        rollout_mesh=adapter.mesh(N) if adapter.mesh else None,
         config=config,
         networks=nets,
         init=init,
@@ -436,9 +440,25 @@ class Runner:
 
     def __init__(self, trainer: Trainer):
         self.trainer = trainer
-        self.rollout = jax.jit(trainer.rollout)
         self.learn = jax.jit(trainer.learn, donate_argnums=0)
         self.select = jax.jit(trainer.select, donate_argnums=0)
+        rollout = jax.jit(trainer.rollout)
+        if trainer.rollout_mesh is None:
+            self.rollout = rollout
+        else:
+            # The rollout's environments are split over several devices (mjx_push.devices). Its
+            # arguments are replicated onto them and what it returns is gathered onto one device, so
+            # the learner and its replay buffer stay single-device programs and arrays (a multi-device
+            # ``learn`` would run replicated, and the shardings of the rollout's arguments would
+            # change from call to call, recompiling it every batch).
+            spread = jax.sharding.NamedSharding(trainer.rollout_mesh, jax.sharding.PartitionSpec())
+            home = jax.sharding.SingleDeviceSharding(jax.devices()[0])
+            self.rollout = lambda *args: jax.device_put(rollout(*jax.device_put(args, spread)), home)
+            # Committed to that device from the first call on (a fresh state is not), so the learner's
+            # functions see the same argument placements every batch and compile once.
+            learn, select = self.learn, self.select
+            self.learn = lambda *args: learn(*jax.device_put(args, home))
+            self.select = lambda *args: select(*jax.device_put(args, home))
 
     def expert_envs(self, env_steps: int) -> np.ndarray:
         """[N] bool: which environments of the next batch follow the scripted expert. During the

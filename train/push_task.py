@@ -123,4 +123,4 @@ def make_push_adapter(env_config: EnvConfig, encoder_params, substep_chunk: int 
 
     return EnvAdapter(reset=reset, step=step, success_tau=env_config.success_tau,
                       scheduler=SubstepScheduler(begin, advance, ready, finish, substep_chunk) if substep_chunk else None,
-                      priv_dim=PRIV_DIM, expert=expert)
+                      priv_dim=PRIV_DIM, expert=expert, mesh=lambda n: batch(n).mesh)

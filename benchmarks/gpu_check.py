@@ -1,0 +1,142 @@
+"""The device check: environment and training throughput, compile times and a short learning run, in one
+JSON. Run it through `benchmarks/gpu_check.sh` on a GPU machine; `--tiny` runs the same stages at toy
+sizes on a CPU (CI does, so the script cannot rot between device sessions).
+
+    python -m benchmarks.gpu_check [--tiny] [--sizes 1024 2048 4096 8192] [--preset paper]
+                                   [--learn-seconds 150] [--budget-s 420] [--out outputs/gpu_check.json]
+
+Stages, in order, each skipped (and marked so) once the time budget is spent:
+1. `env`: per batch size, the preset's environment (`mjx_push.batch.PushBatch`) driven by the substep
+   scheduler of the training rollout with uniform random actions for `--env-steps` steps: compile
+   seconds, useful substeps/s, env steps/s.
+2. `train`: the preset's learner (VPM) through `train.loop.Runner`: the first batch's seconds
+   (compilation included), then batches until `--learn-seconds` have passed: env steps/s and
+   gradient updates/s, rollout and update seconds per batch.
+3. `learn`: the same run's actor evaluated (deterministic, the preset's evaluation episodes, the shared
+   rollout): success within 1, 2 and 5 cm and the final object-goal distance, with the env steps it
+   trained on.
+The JSON is rewritten after every stage, so a run stopped by a timeout keeps what it measured.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+import mjx_push  # noqa: F401  (CPU XLA flags)
+import jax
+import numpy as np
+
+from benchmarks.sim_speed import measure_mjx
+from mjx_push import encoder as enc
+from train import presets
+from train.loop import Runner, make_train
+from train.push_task import make_push_adapter
+
+TINY = dict(sizes=[4, 8], preset="smoke", learn_seconds=1.0, env_steps=3, budget_s=1800.0)
+FULL = dict(sizes=[1024, 2048, 4096, 8192], preset="paper", learn_seconds=150.0, env_steps=10, budget_s=420.0)
+
+
+def machine() -> dict:
+    dev = jax.devices()[0]
+    return {"backend": jax.default_backend(), "device": str(dev), "device_kind": dev.device_kind,
+            "devices": len(jax.devices()), "host": f"{platform.machine()}, {os.cpu_count()} cores",
+            "jax": jax.__version__, "python": platform.python_version()}
+
+
+def env_stage(cfg, sizes: list[int], steps: int, deadline: float) -> list[dict]:
+    rows = []
+    for n in sizes:
+        if time.perf_counter() > deadline:
+            rows.append({"num_envs": n, "skipped": "time budget spent"})
+            continue
+        (r,) = measure_mjx(cfg.env, n, steps, 50, None, jax.random.PRNGKey(n), modes=("scheduled",))
+        rows.append({"num_envs": n, "devices": r["devices"], "compile_s": r["compile_s"],
+                     "useful_substeps_per_s": r["useful_substeps_per_s"], "env_steps_per_s": r["env_steps_per_s"],
+                     "wall_s": r["wall_s"]})
+        print(f"env {n}: {r['useful_substeps_per_s']:,.0f} substeps/s, {r['env_steps_per_s']:,.0f} env steps/s, "
+              f"compile {r['compile_s']:.0f} s", flush=True)
+    return rows
+
+
+def train_stages(cfg, learn_seconds: float, deadline: float) -> tuple[dict, dict]:
+    loop = cfg.train.loop
+    runner = Runner(make_train(cfg.train, make_push_adapter(cfg.env, enc.load(None))))
+    ts = runner.trainer.init(jax.random.PRNGKey(loop.seed))
+    t0 = time.perf_counter()
+    ts, m = runner.iteration(ts)
+    first = time.perf_counter() - t0
+    batches = []
+    stop = min(time.perf_counter() + learn_seconds, deadline)
+    while time.perf_counter() < stop and int(ts.env_steps) < loop.total_env_steps:
+        ts, m = runner.iteration(ts)
+        batches.append({"rollout_s": m["rollout_s"], "learn_s": m["learn_s"]})
+    steps_per_batch = loop.env_steps_per_iteration
+    updates_per_batch = loop.updates_per_iteration
+    train = {"num_envs": loop.num_envs, "env_steps_per_batch": steps_per_batch, "updates_per_batch": updates_per_batch,
+             "first_batch_s": first, "first_batch_rollout_s": m["rollout_s"] if not batches else None,
+             "timed_batches": len(batches)}
+    if batches:
+        roll = float(np.median([b["rollout_s"] for b in batches]))
+        learn = float(np.median([b["learn_s"] for b in batches]))
+        train.update(rollout_s=roll, learn_s=learn, env_steps_per_s=steps_per_batch / (roll + learn),
+                     rollout_env_steps_per_s=steps_per_batch / roll, updates_per_s=updates_per_batch / learn)
+    print(f"train: first batch {first:.0f} s, {len(batches)} more batches", flush=True)
+    if time.perf_counter() > deadline:
+        return train, {"skipped": "time budget spent"}
+    t0 = time.perf_counter()
+    stats = jax.block_until_ready(runner.evaluate(ts.sac.actor_params))
+    learn = {"env_steps": int(ts.env_steps), "episodes": loop.eval_episodes, "eval_s": time.perf_counter() - t0,
+             **{k: float(v) for k, v in stats.items() if np.ndim(v) == 0}}
+    print(f"learn: after {learn['env_steps']} env steps, within 1 / 5 cm {learn['success_1cm']:.2f} / "
+          f"{learn['success_5cm']:.2f}, final distance {learn['final_distance']:.3f} m", flush=True)
+    return train, learn
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--tiny", action="store_true", help="toy sizes for a CPU: " + json.dumps(TINY))
+    p.add_argument("--sizes", type=int, nargs="+")
+    p.add_argument("--preset", choices=presets.PRESETS)
+    p.add_argument("--learn-seconds", type=float, help="training time after the first batch")
+    p.add_argument("--env-steps", type=int, help="env steps per environment in the env stage")
+    p.add_argument("--budget-s", type=float, help="stages that would start after this many seconds are skipped")
+    p.add_argument("--out", type=Path, default=Path("outputs/gpu_check.json"))
+    a = p.parse_args(argv)
+    opts = dict(TINY if a.tiny else FULL)
+    for k in opts:
+        if getattr(a, k) is not None:
+            opts[k] = getattr(a, k)
+    if any(n < 1 for n in opts["sizes"]) or opts["env_steps"] < 1 or opts["learn_seconds"] < 0:
+        p.error("--sizes and --env-steps must be >= 1 and --learn-seconds >= 0")
+    start = time.perf_counter()
+    deadline = start + opts["budget_s"]
+    cfg = presets.make("vpm", opts["preset"], 0)
+    if a.tiny:  # one more batch than the warm-up, so the timed batches learn
+        cfg = dataclasses.replace(cfg, train=presets.override(cfg, **{"loop.total_env_steps": 1200}).train)
+    record = {"machine": machine(), "options": opts, "stages": {}}
+
+    def save(stage: str, value) -> None:
+        record["stages"][stage] = value
+        record["wall_s"] = time.perf_counter() - start
+        a.out.parent.mkdir(parents=True, exist_ok=True)
+        a.out.write_text(json.dumps(record, indent=2) + "\n")
+
+    save("env", env_stage(cfg, opts["sizes"], opts["env_steps"], deadline))
+    if time.perf_counter() > deadline:
+        save("train", {"skipped": "time budget spent"})
+        save("learn", {"skipped": "time budget spent"})
+    else:
+        train, learn = train_stages(cfg, opts["learn_seconds"], deadline)
+        save("train", train)
+        save("learn", learn)
+    print(f"wrote {a.out} ({record['wall_s']:.0f} s)")
+
+
+if __name__ == "__main__":
+    main()

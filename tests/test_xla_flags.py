@@ -1,0 +1,57 @@
+"""The CPU XLA flags and the command line's compilation cache (no compilation here)."""
+
+import os
+
+import jax
+import pytest
+
+from mjx_push import xla
+from train import compile_cache
+
+
+def test_cpu_device_count_reads_the_override_and_rejects_nonsense(monkeypatch):
+    monkeypatch.setenv(xla.DEVICES_ENV, "3")
+    assert xla.cpu_device_count() == 3
+    for bad in ("0", "-2", "two", ""):
+        monkeypatch.setenv(xla.DEVICES_ENV, bad)
+        with pytest.raises(ValueError, match=xla.DEVICES_ENV):
+            xla.cpu_device_count()
+    monkeypatch.delenv(xla.DEVICES_ENV)
+    assert 1 <= xla.cpu_device_count() <= xla.MAX_DEVICES
+
+
+def test_flags_are_added_once_and_a_users_own_setting_wins(monkeypatch):
+    monkeypatch.setenv("XLA_FLAGS", f"{xla.DEVICE_FLAG}=5")
+    monkeypatch.setenv(xla.DEVICES_ENV, "2")
+    xla.apply_cpu_flags()
+    flags = os.environ["XLA_FLAGS"]
+    assert f"{xla.DEVICE_FLAG}=5" in flags and flags.count(xla.DEVICE_FLAG) == 1
+    assert f"{xla.FLAG}=false" in flags
+    xla.apply_cpu_flags()
+    assert os.environ["XLA_FLAGS"] == flags
+
+
+@pytest.fixture
+def no_cache_configured():
+    """No cache folder configured, as in a fresh `mjx-push` process; the suite's own cache after."""
+    env, names = dict(os.environ), ("jax_compilation_cache_dir", "jax_persistent_cache_min_compile_time_secs")
+    before = {n: getattr(jax.config, n) for n in names}
+    jax.config.update("jax_compilation_cache_dir", None)
+    os.environ.pop("JAX_COMPILATION_CACHE_DIR", None)
+    yield
+    for n, v in before.items():
+        jax.config.update(n, v)
+    os.environ.clear()
+    os.environ.update(env)
+
+
+def test_compile_cache_follows_the_variable_and_can_be_turned_off(monkeypatch, tmp_path, no_cache_configured):
+    monkeypatch.setenv(compile_cache.ENV, "off")
+    assert compile_cache.enable() is None and not jax.config.jax_compilation_cache_dir
+    monkeypatch.setenv(compile_cache.ENV, str(tmp_path / "cache"))
+    assert compile_cache.enable() == tmp_path / "cache"
+    assert jax.config.jax_compilation_cache_dir == str(tmp_path / "cache")
+    assert os.environ["JAX_COMPILATION_CACHE_DIR"] == str(tmp_path / "cache")  # spawned workers read it
+    # A folder already configured (by the user, or a program importing us) is kept.
+    monkeypatch.setenv(compile_cache.ENV, str(tmp_path / "other"))
+    assert compile_cache.enable() == tmp_path / "cache"
