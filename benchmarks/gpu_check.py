@@ -71,6 +71,7 @@ def train_stages(cfg, learn_seconds: float, deadline: float) -> tuple[dict, dict
     t0 = time.perf_counter()
     ts, m = runner.iteration(ts)
     first = time.perf_counter() - t0
+    first_parts = {"first_batch_rollout_s": m["rollout_s"], "first_batch_learn_s": m["learn_s"]}
     batches = []
     stop = min(time.perf_counter() + learn_seconds, deadline)
     while time.perf_counter() < stop and int(ts.env_steps) < loop.total_env_steps:
@@ -79,8 +80,7 @@ def train_stages(cfg, learn_seconds: float, deadline: float) -> tuple[dict, dict
     steps_per_batch = loop.env_steps_per_iteration
     updates_per_batch = loop.updates_per_iteration
     train = {"num_envs": loop.num_envs, "env_steps_per_batch": steps_per_batch, "updates_per_batch": updates_per_batch,
-             "first_batch_s": first, "first_batch_rollout_s": m["rollout_s"] if not batches else None,
-             "timed_batches": len(batches)}
+             "first_batch_s": first, **first_parts, "timed_batches": len(batches)}
     if batches:
         roll = float(np.median([b["rollout_s"] for b in batches]))
         learn = float(np.median([b["learn_s"] for b in batches]))

@@ -14,7 +14,7 @@ cd "$(dirname "$0")/.."
 out="${1:-outputs/gpu_check.json}"
 shift || true
 py="${PYTHON:-python3}"
-if ! "$py" -c "import mujoco.mjx, brax, tyro, gymnasium, orbax.checkpoint" 2>/dev/null; then
+if ! "$py" -c "import mujoco.mjx, brax, tyro, gymnasium, orbax.checkpoint" >/dev/null 2>&1; then
   if [ -d .whl ]; then
     "$py" -m pip install --quiet --no-index --find-links .whl --no-deps .whl/*.whl
   else

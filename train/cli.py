@@ -114,7 +114,7 @@ def _preset_arg(metavar: str):
 class Train:
     """Train a pushing agent (SAC + HER) on the MJX scene: logs, checkpoints, best policy in --run-dir.
 
-    Presets: cpu (the default: learns to push in about 16 minutes on 2 CPU cores: 3 of 4 objects end
+    Presets: cpu (the default: learns to push in about 8 minutes on 2 CPU cores: 3 of 4 objects end
     within 5 cm), cpu-long (about two hours, for 1 cm), smoke (minutes, proves the pipeline), reference (the reference code's one
     call of its training script: 29,000 env steps with its action box and learner), paper (millions of
     env steps, sized for one GPU). Any option left unset keeps the preset's value. Ctrl-C (or
@@ -361,8 +361,8 @@ class Reproduce:
     agents: tuple[Literal["vpm", "stacked", "ugru", "egru"], ...] = ("vpm", "stacked", "ugru", "egru")
     """agents to train, started in this order (the report keeps the paper's order)"""
     jobs: int = 1
-    """agents trained and evaluated at once, each in its own process (2 CPU cores, warm-up: two runs
-    side by side made about 29 env steps/s in total, one alone 16-20; on one GPU keep 1)"""
+    """agents trained and evaluated at once, each in its own process (on a CPU 2 overlaps one job's
+    single-core compilation and updates with the other's work; on one GPU keep 1)"""
 
     def run(self) -> None:
         from rich.console import Console

@@ -3,8 +3,8 @@ the encoder, with the presets of `mjx-push train --preset`.
 
 * ``smoke``: the whole pipeline (demonstrations, rollouts, updates, evaluation, checkpoints, best
   policy) on 2 CPU cores in a few minutes; it proves the plumbing, not the policy.
-* ``cpu``: the README's main job: an agent that visibly learns to push on 2 CPU cores in about 16
-  minutes (VPM: 74 % within 5 cm, 38 % within 1 cm; 1 cm needs longer).
+* ``cpu``: the README's main job: an agent that visibly learns to push on 2 CPU cores in about 8
+  minutes (VPM: 75 % within 5 cm, 35 % within 1 cm; 1 cm needs longer).
 * ``cpu-long``: about two hours on 2 CPU cores shared with other runs, for 1 cm (eGRU: 80 % within
   1 cm at 64,000 env steps).
 * ``reference``: the paper's reference code, one call of its training script: its action box and

@@ -4,8 +4,9 @@ and write the report (train/report.py).
 Runs live in `<out>/runs/<agent>-s<seed>`; a finished run (summary.json present) is reused, an
 interrupted one resumed from its checkpoint, and each finished evaluation is cached next to the run
 (`eval-<setting>-<shape>-<episodes>.json`, tied to the policy's sha256), so rerunning the command after
-a crash redoes nothing. `jobs > 1` trains and evaluates that many agents at once in worker processes
-(on 2 CPU cores each MJX training process kept about one core busy).
+a crash redoes nothing. `jobs > 1` trains and evaluates that many agents (and the scripted expert) at
+once in worker processes: each process splits its environments over every core, but compilation and the
+learner's updates run on one core, so on a CPU two jobs overlap what one leaves idle.
 """
 
 from __future__ import annotations
@@ -153,6 +154,12 @@ def agent_job(
     return summaries
 
 
+def _job(kind: str, *args, **kwargs):
+    """One call of the pool: an agent's training and evaluation, or the expert's evaluation (module-level
+    and picklable, for worker processes)."""
+    return {"agent": agent_job, "expert": expert_job}[kind](*args, **kwargs)
+
+
 def run_jobs(fn: Callable, calls: list[tuple[tuple, dict]], jobs: int) -> list:
     """`fn(*args, **kwargs)` for each call, in order; with jobs > 1 in that many worker processes
     (spawned: JAX is not fork-safe), each compiling its own functions. The first failure cancels the
@@ -208,15 +215,18 @@ def reproduce(
     for agent, seed in items:
         # In a worker, `log` (often a rich console) stays behind: lines go to stdout, prefixed.
         job_log = log if jobs == 1 else functools.partial(_log_line, f"[{agent} s{seed}] ")
-        calls.append(((budget, agent, seed, out, episodes, shapes, setting),
+        calls.append((("agent", budget, agent, seed, out, episodes, shapes, setting),
                       {"log": job_log, "config_hook": config_hook}))
-    summaries = run_jobs(agent_job, calls, jobs)
+    if expert:  # last: the first worker to finish an agent takes it, beside the last agents
+        calls.append((("expert", budget, out, episodes, shapes, setting),
+                      {"log": log if jobs == 1 else functools.partial(_log_line, "[expert] ")}))
+    summaries = run_jobs(_job, calls, jobs)
     results: dict[str, dict[str, list]] = {a: {s: [] for s in shapes} for a in AGENTS if a in agents}
     for (agent, _), per_shape in zip(items, summaries):
         for shape in shapes:
             results[agent][shape].append(per_shape[shape])
     if expert:
-        results["expert"] = {s: [v] for s, v in expert_job(budget, out, episodes, shapes, setting, log).items()}
+        results["expert"] = {s: [v] for s, v in summaries[-1].items()}
     meta = {"budget": budget, "seeds": seeds, "jobs": jobs, "episodes": episodes, "setting": setting, "agents": list(results),
             "shapes": list(shapes), "wall_s": time.perf_counter() - t0,
             "machine": f"{platform.machine()}, {__import__('os').cpu_count()} CPU cores, "
