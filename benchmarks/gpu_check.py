@@ -76,16 +76,18 @@ def train_stages(cfg, learn_seconds: float, deadline: float) -> tuple[dict, dict
     stop = min(time.perf_counter() + learn_seconds, deadline)
     while time.perf_counter() < stop and int(ts.env_steps) < loop.total_env_steps:
         ts, m = runner.iteration(ts)
-        batches.append({"rollout_s": m["rollout_s"], "learn_s": m["learn_s"]})
+        batches.append({"rollout_s": m["rollout_s"], "learn_s": m["learn_s"], "learning": bool(m["learning"])})
     steps_per_batch = loop.env_steps_per_iteration
     updates_per_batch = loop.updates_per_iteration
     train = {"num_envs": loop.num_envs, "env_steps_per_batch": steps_per_batch, "updates_per_batch": updates_per_batch,
              "first_batch_s": first, **first_parts, "timed_batches": len(batches)}
-    if batches:
-        roll = float(np.median([b["rollout_s"] for b in batches]))
-        learn = float(np.median([b["learn_s"] for b in batches]))
-        train.update(rollout_s=roll, learn_s=learn, env_steps_per_s=steps_per_batch / (roll + learn),
-                     rollout_env_steps_per_s=steps_per_batch / roll, updates_per_s=updates_per_batch / learn)
+    learning = [b for b in batches if b["learning"]]  # warm-up batches make no updates
+    if learning:
+        roll = float(np.median([b["rollout_s"] for b in learning]))
+        learn = float(np.median([b["learn_s"] for b in learning]))
+        train.update(learning_batches=len(learning), rollout_s=roll, learn_s=learn,
+                     env_steps_per_s=steps_per_batch / (roll + learn), rollout_env_steps_per_s=steps_per_batch / roll,
+                     updates_per_s=updates_per_batch / learn)
     print(f"train: first batch {first:.0f} s, {len(batches)} more batches", flush=True)
     if time.perf_counter() > deadline:
         return train, {"skipped": "time budget spent"}
