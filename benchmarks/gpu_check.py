@@ -21,7 +21,6 @@ The JSON is rewritten after every stage, so a run stopped by a timeout keeps wha
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import os
 import platform
@@ -120,7 +119,7 @@ def main(argv=None) -> None:
     deadline = start + opts["budget_s"]
     cfg = presets.make("vpm", opts["preset"], 0)
     if a.tiny:  # one more batch than the warm-up, so the timed batches learn
-        cfg = dataclasses.replace(cfg, train=presets.override(cfg, **{"loop.total_env_steps": 1200}).train)
+        cfg = presets.override(cfg, **{"loop.total_env_steps": 1200})
     record = {"machine": machine(), "options": opts, "stages": {}}
 
     def save(stage: str, value) -> None:
