@@ -27,7 +27,7 @@ import jax.numpy as jnp
 from brax.envs.base import State
 from flax import struct
 
-from mjx_push import devices
+from mjx_push import devices, objects
 from mjx_push.env import EnvConfig, PushEnv
 
 
@@ -90,10 +90,27 @@ class PushBatch:
         self.jit_reset = jax.jit(self.reset)
         self.jit_step = jax.jit(self.step)
 
-    def reset(self, key: jax.Array) -> BatchState:
+    def reset(self, key: jax.Array, episodes: dict | None = None) -> BatchState:
+        """New episodes, drawn from `key`; where `episodes["use"]` (a traced bool) is True, the given
+        ones instead: `episodes["keys"]` [N, 2] and `episodes["params"]` (ObjectParams [N]), in the
+        batch's order (box group first), as `PushEnv.reset_with` takes them (evaluation episodes
+        through the same compiled reset as training's)."""
         keys = jax.random.split(key, self.num_envs)
-        parts = self._split(keys)
-        return BatchState(tuple(self._run(env.reset, k) for env, k in zip(self.envs, parts)))
+        if episodes is None:
+            return BatchState(tuple(self._run(env.reset, k) for env, k in zip(self.envs, self._split(keys))))
+        use = jnp.broadcast_to(jnp.asarray(episodes["use"]), (self.num_envs,))
+
+        def one(env):
+            def f(k, u, k_given, p_given):
+                rng, k_obj = jax.random.split(k)  # PushEnv.reset's draws
+                drawn = objects.sample(k_obj, env.config.objects, env.geom_type, env.home_flange[:2])
+                pick = lambda a, b: jnp.where(u, a, b)  # noqa: E731
+                return env.reset_with(pick(k_given, rng), jax.tree.map(pick, p_given, drawn))
+            return f
+
+        parts = zip(self.envs, self._split(keys), self._split(use), self._split(episodes["keys"]),
+                    self._split_tree(episodes["params"]))
+        return BatchState(tuple(self._run(one(env), k, u, kg, pg) for env, k, u, kg, pg in parts))
 
     def step(self, state: BatchState, actions: jax.Array) -> BatchState:
         actions = jnp.asarray(actions)
@@ -142,6 +159,11 @@ class PushBatch:
             out.append(x[i : i + n])
             i += n
         return out
+
+    def _split_tree(self, tree):
+        """`_split` of every leaf: one pytree per group."""
+        leaves, treedef = jax.tree.flatten(tree)
+        return [jax.tree.unflatten(treedef, parts) for parts in zip(*[self._split(x) for x in leaves])]
 
     def utilisation(self, substeps: jax.Array) -> jax.Array:
         """Fraction of executed substeps that were useful when the environments of each group ran

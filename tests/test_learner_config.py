@@ -1,7 +1,10 @@
 """Learner configuration (train/config.py): defaults and validation messages."""
 
+import train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
+
 import dataclasses
 
+import jax.numpy as jnp
 import pytest
 
 from train.config import AgentConfig, DemoConfig, LoopConfig, ReplayConfig, SACConfig, TrainConfig
@@ -27,6 +30,12 @@ def test_recurrent_agents():
 def test_updates_per_iteration_counts_the_whole_batch():
     loop = LoopConfig(num_envs=16, episode_len=50, utd=0.5)
     assert loop.env_steps_per_iteration == 800 and loop.updates_per_iteration == 400
+
+
+def _annealed(sac=None, warmup=True, fraction=0.25, **demo):
+    return TrainConfig(AgentConfig("vpm"), sac=sac or SACConfig(bc_weight=1.0),
+                       loop=LoopConfig(total_env_steps=10_000, warmup_env_steps=1_000),
+                       demo=DemoConfig(warmup=warmup, fraction=fraction, **demo))
 
 
 @pytest.mark.parametrize(
@@ -62,6 +71,21 @@ def test_updates_per_iteration_counts_the_whole_batch():
         (lambda: DemoConfig(warmup="yes"), r"demo\.warmup must be a bool"),
         (lambda: TrainConfig(AgentConfig("vpm"), sac=SACConfig(bc_weight=1.0)),
          r"sac\.bc_weight must be 0 unless demonstrations are collected"),
+        (lambda: SACConfig(actor_loss="dagger"), r"sac\.actor_loss must be one of \('sac', 'bc'\)"),
+        (lambda: SACConfig(actor_loss="bc"), r"sac\.bc_weight must be > 0 with sac\.actor_loss 'bc'"),
+        (lambda: SACConfig(actor_loss="bc", bc_weight=1.0), r"sac\.q_filter must be False with sac\.actor_loss 'bc'"),
+        (lambda: DemoConfig(anneal_start=100), r"demo\.anneal_start and demo\.anneal_end must be given together"),
+        (lambda: DemoConfig(anneal_start=500, anneal_end=500), r"demo\.anneal_end must be greater than demo\.anneal_start \(500\)"),
+        (lambda: DemoConfig(anneal_start=-1, anneal_end=5), r"demo\.anneal_start must be an int >= 0"),
+        (lambda: DemoConfig(anneal_start=0, anneal_end=2.5), r"demo\.anneal_end must be an int >= 0"),
+        (lambda: _annealed(anneal_start=100, anneal_end=5_000), r"demo\.anneal_start must be at or after the warm-up \(loop\.warmup_env_steps = 1000\)"),
+        (lambda: _annealed(anneal_start=2_000, anneal_end=20_000), r"demo\.anneal_end must be at most loop\.total_env_steps \(10000\)"),
+        (lambda: _annealed(anneal_start=2_000, anneal_end=5_000, warmup=False, fraction=0.0, sac=SACConfig()),
+         r"demo\.anneal_start must be None unless demonstrations are collected"),
+        (lambda: _annealed(anneal_start=2_000, anneal_end=5_000, sac=SACConfig(actor_loss="bc", bc_weight=1.0, q_filter=False)),
+         r"demo\.anneal_start must be None with sac\.actor_loss 'bc'"),
+        (lambda: LoopConfig(eval_setting="custom"), r"loop\.eval_setting must be one of \('standard', 'difficult'\)"),
+        (lambda: LoopConfig(eval_seed=1.5), r"loop\.eval_seed must be an int"),
         (
             lambda: TrainConfig(
                 AgentConfig("vpm"), replay=ReplayConfig(capacity_transitions=100), loop=LoopConfig(num_envs=4)
@@ -81,9 +105,19 @@ def test_curriculum_radius_falls_linearly_to_the_task_radius():
     assert ReplayConfig(success_tau=0.02).reward_tau(123) == 0.02  # no curriculum
 
 
+def test_teacher_annealing_falls_linearly_to_zero_at_its_end():
+    d = DemoConfig(warmup=True, fraction=0.25, anneal_start=2_000, anneal_end=6_000)
+    steps = (0, 2_000, 3_000, 5_000, 6_000, 9_000)
+    assert [d.teacher_scale(s) for s in steps] == pytest.approx([1.0, 1.0, 0.75, 0.25, 0.0, 0.0])
+    # The traced form (inside the jitted learner) agrees with the host's.
+    assert [float(d.teacher_scale(jnp.asarray(s))) for s in steps] == pytest.approx([1.0, 1.0, 0.75, 0.25, 0.0, 0.0])
+    assert DemoConfig(warmup=True).teacher_scale(10**6) == 1.0  # no annealing: the teacher stays
+
+
 def test_paper_values_stay_the_field_defaults():
     """Old records read back as what they trained with: new features are off unless a preset sets them."""
     a, s, d = AgentConfig("vpm"), SACConfig(), DemoConfig()
     assert (a.obs_norm, a.critic_obs, a.critic_layer_norm, a.critic_widths) == (False, "actor", False, (128, 256, 64))
-    assert (s.init_alpha, s.target_clip, s.bc_weight) == (1.0, False, 0.0)
+    assert (s.init_alpha, s.target_clip, s.bc_weight, s.actor_loss) == (1.0, False, 0.0, "sac")
+    assert (d.anneal_start, d.anneal_end) == (None, None)
     assert not d.enabled and ReplayConfig().curriculum_tau is None

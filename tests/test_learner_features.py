@@ -4,6 +4,8 @@ small inputs with known answers, and the whole set learning the toy task."""
 
 import train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -11,7 +13,7 @@ import pytest
 
 from train import normalizer, replay
 from train.config import AgentConfig, DemoConfig, LoopConfig, ReplayConfig, SACConfig, TrainConfig
-from train.loop import Runner, make_train, train as run_train
+from train.loop import Runner, make_train, spread_envs, train as run_train
 from train.networks import make_networks
 from train.sac import bc_loss_value, make_actor_loss, make_critic_loss
 from train.toy import make_toy
@@ -30,7 +32,8 @@ def test_running_stats_merge_batches_exactly():
     # Weight-0 samples (steps of invalid episodes) do not count.
     junk = np.full((10, 3), 1e6)
     s2 = s.update(jnp.asarray(junk), jnp.zeros(10))
-    np.testing.assert_allclose(s2.mean, s.mean) and np.testing.assert_allclose(s2.std, s.std)
+    np.testing.assert_allclose(s2.mean, s.mean)
+    np.testing.assert_allclose(s2.std, s.std)
     assert float(normalizer.RunningStats.zeros(2).std.min()) > 0  # never divides by zero
 
 
@@ -169,7 +172,59 @@ def _toy_cfg(**over):
 def test_expert_share_of_each_batch():
     runner = Runner(make_train(_toy_cfg(), make_toy(success_tau=TAU)))
     assert runner.expert_envs(0).all()  # demonstrations instead of random warm-up actions
-    assert runner.expert_envs(160).tolist() == [True, True] + [False] * 6  # 25 % of 8 after it
+    assert np.flatnonzero(runner.expert_envs(160)).tolist() == [2, 6]  # 25 % of 8 after it, spread out
+
+
+def test_expert_share_is_spread_over_the_groups_in_proportion():
+    assert spread_envs(8, (16, 16)).reshape(2, 16).sum(1).tolist() == [4, 4]
+    assert spread_envs(3, (5, 3)).tolist() == [False, True, False, True, False, False, True, False]
+    assert spread_envs(0, (4, 4)).sum() == 0 and spread_envs(8, (4, 4)).all()
+    with pytest.raises(ValueError, match="cannot pick 9 of 8 environments"):
+        spread_envs(9, (4, 4))
+
+
+def test_expert_demonstrates_every_shape_group_of_the_pushing_batch():
+    """The `cpu` preset's batch lays out 16 cuboids then 16 cylinders: the expert's 8 environments are
+    4 of each, and so is the agent's own share (12 + 12). Nothing is compiled here."""
+    from mjx_push import encoder as enc
+    from train import presets
+    from train.push_task import make_push_adapter
+
+    cfg = presets.make("vpm", "cpu")
+    runner = Runner(make_train(cfg.train, make_push_adapter(cfg.env, enc.load(None))))
+    after_warmup = runner.expert_envs(cfg.train.loop.warmup_env_steps)
+    assert runner.adapter.groups(32) == (16, 16)
+    assert after_warmup[:16].sum() == 4 and after_warmup[16:].sum() == 4
+
+
+def test_in_run_evaluations_of_every_agent_share_the_protocol_episodes():
+    """VPM (uniform sampling) and eGRU (improved sampling) are scored in training on the same objects,
+    poses and goals: the protocol's episodes of loop.eval_setting / loop.eval_seed, cuboids on the even
+    indices and cylinders on the odd ones, as `mjx-push eval` draws them."""
+    from mjx_push import encoder as enc
+    from train import presets
+    from train.evaluate import EvalSpec, episode_objects
+    from train.push_task import make_push_adapter
+
+    chunks = {}
+    for agent in ("vpm", "egru"):
+        cfg = presets.make(agent, "cpu", seed={"vpm": 0, "egru": 7}[agent])
+        loop = cfg.train.loop
+        chunks[agent] = make_push_adapter(cfg.env, enc.load(None)).eval_episodes(loop.eval_setting, loop.eval_seed, 1, 32)
+    a, b = chunks["vpm"], chunks["egru"]
+    assert a["index"].tolist() == list(range(32, 64, 2)) + list(range(33, 64, 2))  # chunk 1 = episodes 32..63
+    jax.tree.map(np.testing.assert_array_equal, (a["keys"], a["params"]), (b["keys"], b["params"]))
+    spec = EvalSpec(setting=cfg.train.loop.eval_setting, seed=cfg.train.loop.eval_seed)
+    boxes, _ = episode_objects(spec, cfg.env.objects, "box", np.arange(32, 64, 2))
+    np.testing.assert_array_equal(a["params"].start[:16], boxes.start)
+    assert cfg.train.loop.eval_seed != EvalSpec().seed  # the report's test episodes are never the selection's
+
+
+def test_annealed_teacher_leaves_the_last_batches_to_the_agent():
+    cfg = dataclasses.replace(_toy_cfg(), demo=DemoConfig(warmup=True, fraction=0.5, noise=0.1, anneal_start=320,
+                                                           anneal_end=960))
+    runner = Runner(make_train(cfg, make_toy(success_tau=TAU)))
+    assert [int(runner.expert_envs(s).sum()) for s in (160, 320, 640, 800, 960, 1200)] == [4, 4, 2, 1, 0, 0]
 
 
 def test_every_feature_together_learns_the_toy_task():

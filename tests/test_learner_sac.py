@@ -38,6 +38,9 @@ class StubNets:
         a = p["a"] + 0.1 * idx[..., None].astype(jnp.float32)
         return a, jnp.broadcast_to(p["lp"], idx.shape)
 
+    def deterministic_action(self, p, episode, idx):
+        return self.policy(p, episode, idx, None)[0]
+
     def q(self, p, episode, idx, action):
         return p["w"][:, None, None] * jnp.sum(action, -1)[None] + p["c"][:, None, None] * idx[None]
 
@@ -92,6 +95,39 @@ def test_actor_loss_with_stub_networks():
     # d/da_j of mean(-min Q) = mean(1, 1) (the min is Q2 = -sum(a) + ...); d/dlp = alpha
     np.testing.assert_allclose(grads["a"], [1.0, 1.0, 1.0], rtol=1e-6)
     np.testing.assert_allclose(grads["lp"], ALPHA, rtol=1e-6)
+
+
+def test_cloning_only_actor_never_reads_the_critics():
+    """sac.actor_loss 'bc': the actor's loss is the cloning term alone, so neither its value nor its
+    gradient depends on the critics (SAC's objective does)."""
+    demo = {"t": jnp.array([1, 3]), "action": jnp.zeros((2, 3)), "expert_action": jnp.array([[1.0, 0.0, 0.0]] * 2)}
+    other = {"w": jnp.array([-3.0, 5.0]), "c": jnp.array([2.0, -2.0])}
+    grad = lambda f, c: jax.value_and_grad(f, has_aux=True)(ACTOR, c, ALPHA, BATCH, KEY, demo)  # noqa: E731
+    bc_only = make_actor_loss(StubNets(), bc_weight=2.0, q_filter=False, objective="bc")
+    (l1, _), g1 = grad(bc_only, CRITIC)
+    (l2, _), g2 = grad(bc_only, other)
+    # Deterministic actions at t = 1, 3: 0.6 and 0.8 per dim; squared error to (1, 0, 0) summed over dims:
+    # 0.16 + 0.36 + 0.36 = 0.88 and 0.04 + 0.64 + 0.64 = 1.32 -> mean 1.10, times bc_weight 2 = 2.2
+    np.testing.assert_allclose([l1, l2], [2.2, 2.2], rtol=1e-5)
+    jax.tree.map(np.testing.assert_array_equal, g1, g2)
+    assert float(g1["lp"]) == 0.0  # no entropy term either
+    sac = make_actor_loss(StubNets(), bc_weight=2.0, q_filter=False)
+    (_, _), s1 = grad(sac, CRITIC)
+    (_, _), s2 = grad(sac, other)
+    assert not np.allclose(s1["a"], s2["a"])  # SAC's actor follows the critics
+    with pytest.raises(ValueError, match="cloning-only actor needs bc_weight > 0 and no Q-filter"):
+        make_actor_loss(StubNets(), bc_weight=2.0, q_filter=True, objective="bc")
+
+
+def test_cloning_weight_follows_the_teacher_scale():
+    demo = {"t": jnp.array([1, 3]), "action": jnp.zeros((2, 3)), "expert_action": jnp.array([[1.0, 0.0, 0.0]] * 2)}
+    loss = make_actor_loss(StubNets(), bc_weight=2.0, q_filter=False)
+    full, _ = loss(ACTOR, CRITIC, ALPHA, BATCH, KEY, demo, 1.0)
+    quarter, aux = loss(ACTOR, CRITIC, ALPHA, BATCH, KEY, demo, 0.25)
+    none, _ = loss(ACTOR, CRITIC, ALPHA, BATCH, KEY, demo, 0.0)
+    # SAC's part is 0.05 (test_actor_loss_with_stub_networks); the cloning part 2 * 1.10 * scale.
+    np.testing.assert_allclose([full, quarter, none], [0.05 + 2.2, 0.05 + 0.55, 0.05], rtol=1e-5)
+    assert float(aux["bc_scale"]) == 0.25
 
 
 def test_update_with_stub_networks():

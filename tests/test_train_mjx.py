@@ -167,3 +167,13 @@ def test_the_actor_learns_the_experts_pushes_on_the_pushing_scene(encoder_file):
           f"trained {after:.3f}; direction cosine {cos_before:.2f} -> {cos_after:.2f}; training bc loss {bc}")
     assert after < 0.6 * constant < 0.6 * before
     assert cos_after > 0.7 and cos_after > cos_before + 0.5
+
+    # In-run evaluation runs the protocol's episodes through the same compiled rollout, in their order.
+    from train.evaluate import EvalSpec, episode_objects
+
+    ev = runner.evaluate(untrained)
+    loop = cfg.train.loop
+    want, _ = episode_objects(EvalSpec(setting=loop.eval_setting, shape="cylinder", seed=loop.eval_seed),
+                              cfg.env.objects, "cylinder", np.arange(16))
+    np.testing.assert_allclose(ev["episode_start_distance"],
+                               np.linalg.norm(want.start[:, :2] - want.goal[:, :2], axis=-1), rtol=1e-5)

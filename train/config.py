@@ -19,6 +19,14 @@ AgentKind = Literal["vpm", "stacked", "ugru", "egru"]
 AGENT_KINDS: tuple[str, ...] = ("vpm", "stacked", "ugru", "egru")
 CriticObs = Literal["actor", "privileged"]
 CRITIC_OBS: tuple[str, ...] = ("actor", "privileged")
+# What the actor minimises: "sac" (SAC's objective, plus the cloning term when bc_weight > 0) or "bc"
+# (the cloning term alone: DAgger with the scripted expert; the critics still learn, the actor never
+# reads them).
+ActorLoss = Literal["sac", "bc"]
+ACTOR_LOSSES: tuple[str, ...] = ("sac", "bc")
+# The episodes in-run evaluations score (train/episodes.py): the protocol's settings.
+EvalSetting = Literal["standard", "difficult"]
+EVAL_SETTINGS: tuple[str, ...] = ("standard", "difficult")
 
 
 def _check(ok: bool, name: str, requirement: str, value) -> None:
@@ -104,6 +112,7 @@ class SACConfig:
     bc_weight: float = 0.0
     bc_batch_size: int = 128
     q_filter: bool = True
+    actor_loss: ActorLoss = "sac"
 
     def __post_init__(self):
         _check(math.isfinite(self.lr) and self.lr > 0, "sac.lr", "a finite number > 0", self.lr)
@@ -128,6 +137,12 @@ class SACConfig:
                self.bc_weight)
         _positive_int("sac.bc_batch_size", self.bc_batch_size)
         _check(isinstance(self.q_filter, bool), "sac.q_filter", "a bool", self.q_filter)
+        _check(self.actor_loss in ACTOR_LOSSES, "sac.actor_loss", f"one of {ACTOR_LOSSES}", self.actor_loss)
+        if self.actor_loss == "bc":
+            _check(self.bc_weight > 0, "sac.bc_weight", "> 0 with sac.actor_loss 'bc' (the actor's only loss)",
+                   self.bc_weight)
+            _check(not self.q_filter, "sac.q_filter", "False with sac.actor_loss 'bc' (the filter reads the critics)",
+                   self.q_filter)
 
     def resolved_target_entropy(self, action_dim: int) -> float:
         return -float(action_dim) if self.target_entropy is None else float(self.target_entropy)
@@ -187,9 +202,24 @@ class DemoConfig:
     # (DAgger-style: the agent learns the expert's action in the states it visits itself); False: on
     # the demonstration episodes only (Nair et al.).
     label_all: bool = False
+    # The teacher annealed away: from anneal_start to anneal_end (environment steps) the cloning weight
+    # and the expert's share of environments fall linearly to 0 and stay there, so the agent ends
+    # training on its own. None: no annealing (the teacher stays to the end).
+    anneal_start: int | None = None
+    anneal_end: int | None = None
 
     def __post_init__(self):
         _check(isinstance(self.warmup, bool), "demo.warmup", "a bool", self.warmup)
+        if (self.anneal_start is None) != (self.anneal_end is None):
+            raise ValueError("demo.anneal_start and demo.anneal_end must be given together (env steps), got "
+                             f"anneal_start={self.anneal_start!r}, anneal_end={self.anneal_end!r}")
+        if self.anneal_start is not None:
+            for name in ("anneal_start", "anneal_end"):
+                v = getattr(self, name)
+                _check(isinstance(v, int) and not isinstance(v, bool) and v >= 0, f"demo.{name}",
+                       "an int >= 0 (env steps)", v)
+            _check(self.anneal_end > self.anneal_start, "demo.anneal_end",
+                   f"greater than demo.anneal_start ({self.anneal_start})", self.anneal_end)
         _check(isinstance(self.label_all, bool), "demo.label_all", "a bool", self.label_all)
         _fraction("demo.fraction", self.fraction)
         _check(math.isfinite(self.noise) and self.noise >= 0, "demo.noise", "a finite number >= 0", self.noise)
@@ -197,6 +227,16 @@ class DemoConfig:
     @property
     def enabled(self) -> bool:
         return self.warmup or self.fraction > 0
+
+    def teacher_scale(self, env_steps):
+        """The factor (1 -> 0) on the cloning weight and the expert's share after ``env_steps``
+        environment steps (a Python number or a traced array): 1 without annealing."""
+        if self.anneal_start is None:
+            return 1.0 if isinstance(env_steps, (int, float)) else jnp.ones((), jnp.float32)
+        span = float(self.anneal_end - self.anneal_start)
+        if isinstance(env_steps, (int, float)):
+            return min(max((self.anneal_end - env_steps) / span, 0.0), 1.0)
+        return jnp.clip((self.anneal_end - env_steps) / span, 0.0, 1.0).astype(jnp.float32)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -209,6 +249,12 @@ class LoopConfig:
     eval_every_env_steps: int = 5_000
     eval_episodes: int = 100
     seed: int = 0
+    # In-run evaluations (and the best-actor selection) score the protocol's episodes of this setting,
+    # drawn from eval_seed with uniform sampling whatever the agent trains on, so every agent and every
+    # training seed is scored on the same objects. The seed differs from the protocol's test seed
+    # (train.evaluate.EvalSpec), so the actor a report scores was not selected on its episodes.
+    eval_setting: EvalSetting = "standard"
+    eval_seed: int = 2_000_003
 
     def __post_init__(self):
         _positive_int("loop.num_envs", self.num_envs)
@@ -224,6 +270,9 @@ class LoopConfig:
         _positive_int("loop.eval_every_env_steps", self.eval_every_env_steps)
         _positive_int("loop.eval_episodes", self.eval_episodes)
         _check(isinstance(self.seed, int) and not isinstance(self.seed, bool), "loop.seed", "an int", self.seed)
+        _check(self.eval_setting in EVAL_SETTINGS, "loop.eval_setting", f"one of {EVAL_SETTINGS}", self.eval_setting)
+        _check(isinstance(self.eval_seed, int) and not isinstance(self.eval_seed, bool), "loop.eval_seed", "an int",
+               self.eval_seed)
         # The number of updates per episode batch is a static scan length, so it must be whole.
         n = self.num_envs * self.episode_len * self.utd
         _check(
@@ -268,3 +317,14 @@ class TrainConfig:
         )
         _check(self.sac.bc_weight == 0 or self.demo.enabled, "sac.bc_weight",
                "0 unless demonstrations are collected (demo.warmup or demo.fraction > 0)", self.sac.bc_weight)
+        if self.demo.anneal_start is not None:
+            _check(self.demo.enabled, "demo.anneal_start", "None unless demonstrations are collected",
+                   self.demo.anneal_start)
+            _check(self.sac.actor_loss == "sac", "demo.anneal_start",
+                   "None with sac.actor_loss 'bc' (annealing the only loss away leaves the actor nothing to learn)",
+                   self.demo.anneal_start)
+            _check(self.demo.anneal_start >= self.loop.warmup_env_steps, "demo.anneal_start",
+                   f"at or after the warm-up (loop.warmup_env_steps = {self.loop.warmup_env_steps})",
+                   self.demo.anneal_start)
+            _check(self.demo.anneal_end <= self.loop.total_env_steps, "demo.anneal_end",
+                   f"at most loop.total_env_steps ({self.loop.total_env_steps})", self.demo.anneal_end)

@@ -32,7 +32,13 @@ the tests and the MJX pushing environment:
 * optionally ``priv_dim`` > 0: ``step_obs["priv"]`` is the ground-truth state a privileged critic
   reads (its first two numbers are the object's xy);
 * optionally ``expert(step_obs, episode_info) -> action [N, 3]``: a scripted policy on the ground
-  truth, for demonstrations (``DemoConfig``) and as a baseline.
+  truth, for demonstrations (``DemoConfig``) and as a baseline;
+* optionally ``groups(num_envs) -> sizes``: the contiguous groups a batch is laid out in (the pushing
+  scene's shape groups), over which the expert's environments are spread in proportion;
+* optionally ``eval_episodes(setting, seed, chunk, num_envs) -> episodes``: the protocol's evaluation
+  episodes as a pytree (``use``, ``index`` [N], and whatever the adapter's ``reset(key, num_envs,
+  episodes)`` needs to start them where ``use`` is True), so in-run evaluations score every agent on
+  the same objects, poses and goals.
 """
 
 from __future__ import annotations
@@ -98,6 +104,27 @@ class EnvAdapter:
     expert: Callable[[dict, dict], jax.Array] | None = None
     # The devices a batch of ``num_envs`` environments is split over (a jax Mesh), or None for one.
     mesh: Callable[[int], Any] | None = None
+    groups: Callable[[int], tuple[int, ...]] | None = None
+    eval_episodes: Callable[[str, int, int, int], dict] | None = None
+
+
+def spread_envs(k: int, groups: tuple[int, ...]) -> np.ndarray:
+    """[sum(groups)] bool with ``k`` True, shared among the contiguous ``groups`` in proportion to
+    their sizes (largest remainder) and evenly spaced within each, so the expert demonstrates every
+    group (shape) and the agent's own environments keep the batch's mix."""
+    n = sum(groups)
+    if not 0 <= k <= n:
+        raise ValueError(f"cannot pick {k} of {n} environments")
+    quota = np.array([k * g / n for g in groups])
+    take = np.floor(quota).astype(int)
+    for i in np.argsort(-(quota - take), kind="stable")[: k - take.sum()]:
+        take[i] += 1
+    out = []
+    for g, t in zip(groups, take):
+        mask = np.zeros(g, bool)
+        mask[np.floor((np.arange(t) + 0.5) * g / max(t, 1)).astype(int)] = True
+        out.append(mask)
+    return np.concatenate(out)
 
 
 @flax.struct.dataclass
@@ -128,6 +155,7 @@ class Trainer:
     num_eval_chunks: int
     total_updates: int
     rollout_mesh: Any = None  # the devices the training rollout's environments are split over
+    adapter: EnvAdapter | None = None  # the environment (its expert groups and evaluation episodes)
 
 
 def episode_stats(episodes: dict, success_tau: float) -> dict:
@@ -298,12 +326,16 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
         _, _, _, obs_buf, act_buf, bad = jax.lax.while_loop(lambda c: jnp.any(c[1] < T), body, init_c)
         return obs_buf, act_buf, bad
 
-    def collect(actor_params, key, num_envs: int, random_actions, deterministic, expert_envs):
+    def collect(actor_params, key, num_envs: int, random_actions, deterministic, expert_envs, episodes=None):
         """One whole episode in ``num_envs`` envs -> (episode records [num_envs, ...], stats). Step t
         of environment i draws its randomness from fold_in(key_t, i), so an episode does not depend on
-        how the environments were scheduled."""
+        how the environments were scheduled. ``episodes`` (``adapter.eval_episodes``) starts the
+        protocol's episodes instead of freshly drawn ones where its ``use`` flag is True."""
         k_reset, k_roll = jax.random.split(key)
-        env_state, obs0, info = adapter.reset(k_reset, num_envs)
+        if episodes is None:
+            env_state, obs0, info = adapter.reset(k_reset, num_envs)
+        else:
+            env_state, obs0, info = adapter.reset(k_reset, num_envs, episodes)
         run = scheduled if adapter.scheduler is not None else lockstep
         expert_envs = jnp.broadcast_to(expert_envs, (num_envs,))
         obs_seq, records, bad = run(actor_params, env_state, obs0, info, jax.random.split(k_roll, T), num_envs,
@@ -331,22 +363,22 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
 
     bc = sac_cfg.bc_weight > 0
 
-    def run_updates(sac_state, buffer, key, tau):
+    def run_updates(sac_state, buffer, key, tau, bc_scale):
         def body(s, k):
             k_sample, k_demo, k_update = jax.random.split(k, 3)
             batch = replay.sample(buffer, k_sample, sac_cfg.batch_size, success_tau=tau)
             demo = (replay.sample(buffer, k_demo, sac_cfg.bc_batch_size, demos_only=not demo_cfg.label_all,
                                   relabel=False) if bc else None)
-            return update(s, batch, k_update, demo)
+            return update(s, batch, k_update, demo, bc_scale)
 
         sac_state, metrics = jax.lax.scan(body, sac_state, jax.random.split(key, loop.updates_per_iteration))
         return sac_state, jax.tree.map(jnp.mean, metrics)
 
-    def rollout(actor_params, key, random_actions, deterministic, expert_envs=False):
-        """One episode in each of the ``num_envs`` training envs. The flags are traced, so training
-        rollouts, demonstrations and evaluation chunks share one compiled function (on CPU the
-        environment's compilation is the largest fixed cost of a run)."""
-        return collect(actor_params, key, N, random_actions, deterministic, expert_envs)
+    def rollout(actor_params, key, random_actions, deterministic, expert_envs=False, episodes=None):
+        """One episode in each of the ``num_envs`` training envs. The flags (and ``episodes``' use
+        flag) are traced, so training rollouts, demonstrations and evaluation chunks share one compiled
+        function (on CPU the environment's compilation is the largest fixed cost of a run)."""
+        return collect(actor_params, key, N, random_actions, deterministic, expert_envs, episodes)
 
     def with_norm(sac_state: SACState, stats) -> SACState:
         """The networks' "norm" variables set from the running statistics."""
@@ -373,13 +405,15 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
             norm_stats = normalizer.update_stats(norm_stats, episodes, agent.critic_obs)
             sac_state = with_norm(sac_state, norm_stats)
         tau = config.replay.reward_tau(jnp.maximum(env_steps - loop.warmup_env_steps, 0).astype(jnp.float32))
+        # The teacher's annealing factor on the cloning weight, at this batch's env steps.
+        bc_scale = demo_cfg.teacher_scale(env_steps)
 
-        update_metrics_shape = jax.eval_shape(run_updates, sac_state, buffer, k_update, tau)[1]
+        update_metrics_shape = jax.eval_shape(run_updates, sac_state, buffer, k_update, tau, bc_scale)[1]
         skip_metrics = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), update_metrics_shape)
         if loop.updates_per_iteration > 0:
             sac_state, update_metrics = jax.lax.cond(
-                learn, run_updates, lambda s, b, k, t: (s, skip_metrics), sac_state, buffer, k_update, tau
-            )
+                learn, run_updates, lambda s, b, k, t, w: (s, skip_metrics), sac_state, buffer, k_update, tau,
+                bc_scale)
         else:
             update_metrics = skip_metrics
 
@@ -392,6 +426,7 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
             "replay/valid_episodes": replay.num_valid_episodes(buffer),
             "replay/demo_episodes": replay.num_demo_episodes(buffer),
             "replay/reward_tau": jnp.asarray(tau, jnp.float32),
+            "demo/teacher_scale": bc_scale,
         }
         return new_ts, metrics
 
@@ -419,6 +454,7 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
 
     return Trainer(
         rollout_mesh=adapter.mesh(N) if adapter.mesh else None,
+        adapter=adapter,
         config=config,
         networks=nets,
         init=init,
@@ -436,15 +472,21 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
 
 class Runner:
     """Host-side driver of a ``Trainer``: two compiled functions, ``rollout`` (shared by training and
-    evaluation) and ``learn`` (donating the state, so the replay buffer is updated in place)."""
+    evaluation) and ``learn`` (donating the state, so the replay buffer is updated in place).
+
+    With an adapter that defines ``eval_episodes``, in-run evaluations (and so the best actor) score
+    the protocol's episodes of ``loop.eval_setting`` drawn from ``loop.eval_seed``: the same objects,
+    poses and goals for every agent and training seed. Otherwise (the toy task) they draw their
+    episodes from ``trainer.eval_key``."""
 
     def __init__(self, trainer: Trainer):
         self.trainer = trainer
+        self.adapter = trainer.adapter
         self.learn = jax.jit(trainer.learn, donate_argnums=0)
         self.select = jax.jit(trainer.select, donate_argnums=0)
         rollout = jax.jit(trainer.rollout)
         if trainer.rollout_mesh is None:
-            self.rollout = rollout
+            self._rollout = rollout
         else:
             # The rollout's environments are split over several devices (mjx_push.devices). Its
             # arguments are replicated onto them and what it returns is gathered onto one device, so
@@ -453,34 +495,68 @@ class Runner:
             # change from call to call, recompiling it every batch).
             spread = jax.sharding.NamedSharding(trainer.rollout_mesh, jax.sharding.PartitionSpec())
             home = jax.sharding.SingleDeviceSharding(jax.devices()[0])
-            self.rollout = lambda *args: jax.device_put(rollout(*jax.device_put(args, spread)), home)
+            self._rollout = lambda *args: jax.device_put(rollout(*jax.device_put(args, spread)), home)
             # Committed to that device from the first call on (a fresh state is not), so the learner's
             # functions see the same argument placements every batch and compile once.
             learn, select = self.learn, self.select
             self.learn = lambda *args: learn(*jax.device_put(args, home))
             self.select = lambda *args: select(*jax.device_put(args, home))
+        self._eval_chunks: list | None = None
+
+    @property
+    def shared_episodes(self) -> bool:
+        return self.adapter is not None and self.adapter.eval_episodes is not None
+
+    def eval_chunks(self) -> list:
+        """The in-run evaluation's episodes, one pytree per chunk of ``num_envs`` (built once)."""
+        if self._eval_chunks is None:
+            loop = self.trainer.config.loop
+            chunks, covered = [], 0
+            while covered < loop.eval_episodes:  # until every episode index below eval_episodes is run
+                ep = jax.device_get(self.adapter.eval_episodes(loop.eval_setting, loop.eval_seed, len(chunks),
+                                                               loop.num_envs))
+                covered += int(np.sum(np.asarray(ep["index"]) < loop.eval_episodes))
+                chunks.append(ep)
+            self._eval_chunks = chunks
+        return self._eval_chunks
+
+    def rollout(self, actor_params, key, random_actions, deterministic, expert_envs, episodes=None):
+        """The compiled rollout; with shared evaluation episodes the training rollouts pass the first
+        chunk with its ``use`` flag off, so both kinds of call compile to one program."""
+        if self.shared_episodes:
+            if episodes is None:
+                episodes = {**self.eval_chunks()[0], "use": np.asarray(False)}
+            return self._rollout(actor_params, key, random_actions, deterministic, expert_envs, episodes)
+        if episodes is not None:
+            raise ValueError("this environment adapter defines no evaluation episodes")
+        return self._rollout(actor_params, key, random_actions, deterministic, expert_envs)
 
     def expert_envs(self, env_steps: int) -> np.ndarray:
         """[N] bool: which environments of the next batch follow the scripted expert. During the
-        warm-up all of them with ``demo.warmup`` (none otherwise: random actions); after it, the first
-        round(fraction * N) (the expert's share of every batch, fixed so every batch compiles alike)."""
+        warm-up all of them with ``demo.warmup`` (none otherwise: random actions); after it
+        round(fraction * N * teacher_scale) of them (the annealing factor, 1 without annealing),
+        spread over the adapter's shape groups in proportion (`spread_envs`). The mask is an input
+        of the rollout, so every batch compiles alike."""
         cfg = self.trainer.config
         n = cfg.loop.num_envs
         if env_steps < cfg.loop.warmup_env_steps:
-            k = n if cfg.demo.warmup else 0
-        else:
-            k = int(round(cfg.demo.fraction * n))
-        return np.arange(n) < k
+            return np.full(n, cfg.demo.warmup)
+        k = int(round(cfg.demo.fraction * n * cfg.demo.teacher_scale(env_steps)))
+        groups = self.adapter.groups(n) if self.adapter is not None and self.adapter.groups else (n,)
+        return spread_envs(k, tuple(groups))
 
     def iteration(self, ts: TrainState) -> tuple[TrainState, dict]:
         cfg = self.trainer.config
         ts, k_collect, k_update = self.trainer.split_keys(ts)
         steps = int(ts.env_steps)
         random_actions = jnp.asarray(steps < cfg.loop.warmup_env_steps and not cfg.demo.warmup)
+        # A cloning-only actor has no entropy objective, so its sampling noise is untrained: it acts
+        # deterministically, as DAgger's learner does.
+        deterministic = jnp.asarray(cfg.sac.actor_loss == "bc")
         expert = self.expert_envs(steps)
         t0 = time.perf_counter()
         episodes, stats = jax.block_until_ready(
-            self.rollout(ts.sac.actor_params, k_collect, random_actions, jnp.asarray(False), jnp.asarray(expert)))
+            self.rollout(ts.sac.actor_params, k_collect, random_actions, deterministic, jnp.asarray(expert)))
         t1 = time.perf_counter()
         ts, metrics = jax.block_until_ready(self.learn(ts, episodes, k_update))
         metrics.update(rollout_s=t1 - t0, learn_s=time.perf_counter() - t1)
@@ -491,15 +567,26 @@ class Runner:
                     "train/expert_envs": int(expert.sum())}
 
     def evaluate(self, actor_params, key: jax.Array | None = None, expert: bool = False) -> dict:
-        """The trainer's ``evaluate`` through the shared rollout; per-episode arrays included.
-        ``expert`` evaluates the environment's scripted expert instead of the actor."""
+        """``eval_episodes`` deterministic episodes through the shared rollout (the shared episodes
+        when the adapter has them, else drawn from ``key``, default the trainer's ``eval_key``), in
+        episode order; per-episode arrays included. ``expert`` evaluates the environment's scripted
+        expert instead of the actor."""
         t = self.trainer
-        key = t.eval_key if key is None else key
-        flags = (jnp.asarray(False), jnp.asarray(True), jnp.asarray(np.full(t.config.loop.num_envs, expert)))
-        chunks = [self.rollout(actor_params, jax.random.fold_in(key, c), *flags)[1]
-                  for c in range(t.num_eval_chunks)]
         n = t.config.loop.eval_episodes
-        flat = {k: jnp.concatenate([c[k] for c in chunks])[:n] for k in chunks[0]}
+        flags = (jnp.asarray(False), jnp.asarray(True), jnp.asarray(np.full(t.config.loop.num_envs, expert)))
+        if self.shared_episodes and key is None:
+            chunks = self.eval_chunks()
+            stats = [self.rollout(actor_params, jax.random.fold_in(t.eval_key, c), *flags, episodes=ep)[1]
+                     for c, ep in enumerate(chunks)]
+            index = np.concatenate([np.asarray(ep["index"]) for ep in chunks])
+            order = np.argsort(index, kind="stable")
+            order = order[index[order] < n]  # the protocol's first n episodes
+            flat = {k: jnp.concatenate([c[k] for c in stats])[order] for k in stats[0]}
+        else:
+            key = t.eval_key if key is None else key
+            stats = [self.rollout(actor_params, jax.random.fold_in(key, c), *flags)[1]
+                     for c in range(t.num_eval_chunks)]
+            flat = {k: jnp.concatenate([c[k] for c in stats])[:n] for k in stats[0]}
         return {**summarize(flat), **flat}
 
     def eval_and_select(self, ts: TrainState) -> tuple[TrainState, dict]:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from mjx_push import encoder as enc
 from mjx_push import expert as expert_mod
@@ -67,6 +68,9 @@ def expert_ground_truth(priv: jax.Array, goal_xy: jax.Array) -> dict:
 # substeps are spent, instead of every step waiting for the slowest environment
 # (benchmarks/rollout_throughput.py measures the effect of this value).
 DEFAULT_SUBSTEP_CHUNK = 50
+# The protocol's shape filter (train.evaluate.SHAPES) for a training shape filter (objects.SHAPE_FILTERS).
+EVAL_SHAPE = {"any": "all", "cylinder": "cylinder", "cuboid": "cuboid", "square": "square",
+              "rectangular": "rectangular"}
 
 
 def make_push_adapter(env_config: EnvConfig, encoder_params, substep_chunk: int = DEFAULT_SUBSTEP_CHUNK,
@@ -99,8 +103,8 @@ def make_push_adapter(env_config: EnvConfig, encoder_params, substep_chunk: int 
         gt = expert_ground_truth(step_obs["priv"], info["goal_xy"])
         return jax.vmap(lambda g: expert_mod.act(expert_config, env_config, g))(gt)
 
-    def reset(key: jax.Array, num_envs: int):
-        s = batch(num_envs).reset(key)
+    def reset(key: jax.Array, num_envs: int, episodes: dict | None = None):
+        s = batch(num_envs).reset(key, episodes)
         info = {"z_goal": enc.encode(encoder_params, s.obs["goal_mask"]), "goal_xy": s.info("goal_xy")}
         return s, observe(s), info
 
@@ -121,6 +125,28 @@ def make_push_adapter(env_config: EnvConfig, encoder_params, substep_chunk: int 
         s = batch(mask.shape[0]).finish(s, mask)
         return s, observe(s), s.info("episode_invalid")
 
+    def eval_episodes(setting: str, seed: int, chunk: int, num_envs: int) -> dict:
+        """Chunk `chunk` of the protocol's episodes (train.evaluate.episode_objects) of `setting` and
+        `seed`, laid out as a batch of `num_envs`: with both shapes the box group runs the even
+        (cuboid) episodes and the cylinder group the odd ones, as the protocol splits them, so with
+        equal groups chunk c is exactly episodes [c N, (c + 1) N)."""
+        from train.evaluate import EvalSpec, episode_objects  # the protocol (imports the learner's modules)
+
+        b = batch(num_envs)
+        spec = EvalSpec(setting=setting, shape=EVAL_SHAPE[env_config.objects.shape], seed=seed)
+        keys, params, index = [], [], []
+        for geom_type, count in zip(b.geom_types, b.counts):
+            slots = chunk * count + np.arange(count)
+            idx = 2 * slots + (geom_type != "box") if len(b.counts) == 2 else slots
+            p, k = episode_objects(spec, env_config.objects, geom_type, idx)
+            params.append(p)
+            keys.append(k)
+            index.append(idx)
+        cat = lambda *xs: jnp.concatenate(xs)  # noqa: E731
+        return {"use": np.asarray(True), "keys": cat(*keys), "params": jax.tree.map(cat, *params),
+                "index": np.concatenate(index)}
+
     return EnvAdapter(reset=reset, step=step, success_tau=env_config.success_tau,
                       scheduler=SubstepScheduler(begin, advance, ready, finish, substep_chunk) if substep_chunk else None,
-                      priv_dim=PRIV_DIM, expert=expert, mesh=lambda n: batch(n).mesh)
+                      priv_dim=PRIV_DIM, expert=expert, mesh=lambda n: batch(n).mesh,
+                      groups=lambda n: batch(n).counts, eval_episodes=eval_episodes)

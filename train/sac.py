@@ -12,7 +12,9 @@ compute history features at t and t+1 with the (possibly relabelled) goal.
 Options (``SACConfig``): ``target_clip`` clips TD targets to the return's range [-1/(1-gamma), 0];
 ``bc_weight`` adds behaviour cloning on a second batch of expert demonstration steps (never
 relabelled), Q-filtered by default: the squared error between the actor's deterministic action and the
-expert's counts only where the updated critics rate the expert's action higher.
+expert's counts only where the updated critics rate the expert's action higher. ``actor_loss`` "bc"
+trains the actor on that term alone (cloning, DAgger-style with stored labels): its gradient never
+reads the critics, which still learn (their losses stay comparable across learners).
 """
 
 from __future__ import annotations
@@ -98,15 +100,27 @@ def bc_loss_value(action, expert_action, keep):
     return jnp.mean(keep * jnp.sum((action - expert_action) ** 2, axis=-1))
 
 
-def make_actor_loss(nets: Networks, bc_weight: float = 0.0, q_filter: bool = True) -> Callable:
-    def actor_loss(actor_params, critic_params, alpha, batch, key, demo=None):
+def make_actor_loss(nets: Networks, bc_weight: float = 0.0, q_filter: bool = True,
+                    objective: str = "sac") -> Callable:
+    """``actor_loss(actor_params, critic_params, alpha, batch, key, demo=None, bc_scale=1.0)``: SAC's
+    actor loss plus ``bc_weight * bc_scale`` times the cloning term (``objective`` "sac"), or the
+    cloning term alone ("bc"). ``bc_scale`` is the teacher's annealing factor (DemoConfig)."""
+    if objective not in ("sac", "bc"):
+        raise ValueError(f"actor objective must be 'sac' or 'bc', got {objective!r}")
+    if objective == "bc" and (bc_weight <= 0 or q_filter):
+        raise ValueError("the cloning-only actor needs bc_weight > 0 and no Q-filter")
+
+    def actor_loss(actor_params, critic_params, alpha, batch, key, demo=None, bc_scale=1.0):
         B = batch["t"].shape[0]
         noise = jax.random.normal(key, (B, 1, nets.action_dim))
         action, logp = nets.policy(actor_params, batch, _at(batch, 0), noise)
-        q_pi = nets.q(critic_params, batch, _at(batch, 0), action)[..., 0]
         logp = logp[:, 0]
-        loss = actor_loss_value(logp, q_pi, alpha)
         aux = {"logp": logp}
+        if objective == "bc":
+            loss = jnp.zeros(())  # the critics are not read at all (no Q term, no entropy term)
+        else:
+            q_pi = nets.q(critic_params, batch, _at(batch, 0), action)[..., 0]
+            loss = actor_loss_value(logp, q_pi, alpha)
         if demo is not None and bc_weight > 0:
             pi = nets.deterministic_action(actor_params, demo, _at(demo, 0))[:, 0]
             expert = demo.get("expert_action", demo["action"])  # the noise-free label when stored
@@ -117,8 +131,8 @@ def make_actor_loss(nets: Networks, bc_weight: float = 0.0, q_filter: bool = Tru
             else:
                 keep = jnp.ones(pi.shape[:1])
             bc = bc_loss_value(pi, expert, keep)
-            loss = loss + bc_weight * bc
-            aux.update(bc_loss=bc, bc_kept=jnp.mean(keep))
+            loss = loss + bc_weight * bc_scale * bc
+            aux.update(bc_loss=bc, bc_kept=jnp.mean(keep), bc_scale=jnp.asarray(bc_scale, jnp.float32))
         return loss, aux
 
     return actor_loss
@@ -172,7 +186,7 @@ def make_update(
     nets = nets if nets is not None else make_networks(agent, action_dim)
     opt = make_optimizer(sac, total_updates)
     critic_loss = jax.value_and_grad(make_critic_loss(nets, sac.gamma, sac.target_clip), has_aux=True)
-    actor_loss = jax.value_and_grad(make_actor_loss(nets, sac.bc_weight, sac.q_filter), has_aux=True)
+    actor_loss = jax.value_and_grad(make_actor_loss(nets, sac.bc_weight, sac.q_filter, sac.actor_loss), has_aux=True)
     alpha_grad = jax.value_and_grad(alpha_loss)
     target_entropy = sac.resolved_target_entropy(action_dim)
 
@@ -180,8 +194,10 @@ def make_update(
         updates, opt_state = opt.update(grads, opt_state, params)
         return optax.apply_updates(params, updates), opt_state
 
-    def update(state: SACState, batch: dict, key: jax.Array, demo: dict | None = None) -> tuple[SACState, dict]:
-        """One update; ``demo`` is a batch of demonstration steps for the behaviour-cloning term."""
+    def update(state: SACState, batch: dict, key: jax.Array, demo: dict | None = None,
+               bc_scale=1.0) -> tuple[SACState, dict]:
+        """One update; ``demo`` is a batch of demonstration steps for the behaviour-cloning term, whose
+        weight ``bc_scale`` multiplies (the teacher's annealing)."""
         k_next, k_pi = jax.random.split(key)
         alpha = jnp.exp(state.log_alpha)  # this update's coefficient, fixed before the alpha step
 
@@ -190,7 +206,7 @@ def make_update(
         )
         critic_params, critic_opt_state = step(state.critic_params, state.critic_opt_state, c_grads)
 
-        (a_loss, a_aux), a_grads = actor_loss(state.actor_params, critic_params, alpha, batch, k_pi, demo)
+        (a_loss, a_aux), a_grads = actor_loss(state.actor_params, critic_params, alpha, batch, k_pi, demo, bc_scale)
         logp = a_aux["logp"]
         actor_params, actor_opt_state = step(state.actor_params, state.actor_opt_state, a_grads)
 
