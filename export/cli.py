@@ -23,6 +23,9 @@ class Export:
     """a run directory (its best_policy is exported) or a saved policy (.msgpack, .json or their stem)"""
     out: Annotated[Path, tyro.conf.arg(metavar="OUT.npz"), tyro.conf.Positional]
     """the .npz to write"""
+    encoder: Literal["embed", "package"] = "embed"
+    """embed the encoder's weights (a self-contained file, ~4 MB), or reference the encoder this package
+    ships by its sha256 (a few hundred kB; loading then needs mjx-push installed, at that encoder)"""
 
     def run(self) -> dict:
         from rich.console import Console
@@ -46,11 +49,30 @@ class Export:
             policy = load_policy(stem)
         except ValueError as e:
             raise ValueError(f"SOURCE {source}: {e}") from None
-        meta = export_policy(policy, self.out)
+        meta = export_policy(policy, self.out, encoder=self.encoder,
+                             provenance={"source": str(stem), "commit": source_commit()})
         size = Path(self.out).stat().st_size
         Console().print(f"wrote [bold]{self.out}[/] ({size / 1e6:.2f} MB): agent {meta['agent']['kind']}, "
                         f"format {FORMAT} version {FORMAT_VERSION}, from {stem}; scores {meta['scores']}")
         return meta
+
+
+def source_commit() -> str | None:
+    """The git commit of the checkout mjx-push runs from (with "+dirty" for uncommitted changes), or
+    None outside a git checkout: provenance for exported policies."""
+    import subprocess
+
+    root = Path(__file__).resolve().parent.parent
+    try:
+        head = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True,
+                              timeout=10)
+        if head.returncode != 0:
+            return None
+        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True, timeout=10).stdout.strip()
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    return head.stdout.strip() + ("+dirty" if dirty else "")
 
 
 @dataclasses.dataclass(kw_only=True)
@@ -59,7 +81,7 @@ class Deploy(EvalOptions):
     eval` (docs/task.md section 7): the same settings, shapes, defaults and episodes, the same table."""
 
     policy: Annotated[Path, tyro.conf.arg(metavar="POLICY.npz"), tyro.conf.Positional]
-    """the exported .npz (from `mjx-push export`)"""
+    """the exported .npz (from `mjx-push export`), or a shipped policy: `pretrained:NAME`"""
     sim: Literal["cpu"] = "cpu"
     """simulator: CPU MuJoCo (export.cpu_env.CpuPushEnv)"""
     mask_source: Literal["auto", "render", "analytic"] = "auto"
@@ -76,6 +98,9 @@ class Deploy(EvalOptions):
             raise ValueError(f"--sim must be 'cpu', got {self.sim!r}")
         if self.mask_source not in MASK_SOURCES:
             raise ValueError(f"--mask-source must be one of {MASK_SOURCES}, got {self.mask_source!r}")
+        from export.pretrained import resolve
+
+        self.policy = resolve(self.policy)
         if Path(self.policy).suffix != ".npz":
             raise ValueError(f"POLICY.npz must be an exported .npz (mjx-push export makes one), got {self.policy}")
         if not Path(self.policy).is_file():

@@ -16,6 +16,11 @@ Arrays, named by their flax parameter paths (kernels are flax layouts: Dense (in
   layout, action mapping, camera and mask convention, encoder architecture and record, package version,
   training scores and the full run configuration.
 
+A file may leave the encoder out and reference the one the package ships instead (``export_policy(...,
+encoder="package")``; metadata ``encoder.weights`` = {"source": "package", "sha256": ...}): the shipped
+policies (`export.pretrained`) do, since the encoder is nearly all of a file's 4 MB. Loading such a file
+reads the package's encoder (msgpack, read here with NumPy) and refuses it if its sha256 differs.
+
 `load_npz` checks everything a reader relies on (format, version, every array's presence, shape, dtype and
 finiteness against the shapes the metadata implies) and raises ValueError naming the file and the problem.
 `load_as_policy` turns a file back into a `train.run.Policy` (for `mjx-push eval` on the MJX scene).
@@ -25,6 +30,8 @@ side lazily.
 
 from __future__ import annotations
 
+import hashlib
+import importlib.util
 import json
 import math
 import os
@@ -38,6 +45,7 @@ import numpy as np
 FORMAT = "mjx-push-numpy-policy"
 FORMAT_VERSION = 1
 METADATA_KEY = "__metadata__"
+ENCODER_SOURCES = ("embed", "package")  # the encoder's weights: in the file, or the package's (by hash)
 AGENT_KINDS = ("vpm", "stacked", "ugru", "egru")
 GRU_GATES_IN = ("ir", "iz", "in")  # input-side Dense layers (with bias)
 GRU_GATES_H = ("hr", "hz", "hn")  # hidden-side Dense layers (only hn has a bias)
@@ -157,6 +165,10 @@ def load_npz(path: Path | str) -> PolicyFile:
     except Exception as e:  # zipfile, zlib and numpy raise unrelated types on damaged members
         raise ValueError(f"policy file {path} is corrupt (an array cannot be read: {type(e).__name__}: {e})") from None
     meta = _read_metadata(path, arrays.pop(METADATA_KEY, None))
+    if _encoder_source(meta, path) == "package":
+        if any(name.startswith("encoder/") for name in arrays):
+            raise ValueError(f"policy file {path} references the package's encoder but also holds encoder arrays")
+        arrays.update(package_encoder_arrays(meta["encoder"]["weights"].get("sha256"), path))
     try:
         want = expected_shapes(meta)
     except ValueError as e:
@@ -203,6 +215,57 @@ def _read_metadata(path: Path, raw: np.ndarray | None) -> dict:
     return meta
 
 
+def _encoder_source(meta: dict, path: Path) -> str:
+    weights = (meta.get("encoder") or {}).get("weights") or {"source": "embed"}
+    source = weights.get("source") if isinstance(weights, dict) else None
+    if source not in ENCODER_SOURCES:
+        raise ValueError(f"policy file {path}: metadata field encoder.weights.source must be one of "
+                         f"{ENCODER_SOURCES}, got {source!r}")
+    return source
+
+
+# --- the package's encoder, read without JAX ---------------------------------------------------------
+def package_encoder_path() -> Path:
+    """The encoder weights mjx_push ships (found without importing mjx_push, which starts JAX)."""
+    spec = importlib.util.find_spec("mjx_push")
+    if spec is None or not spec.submodule_search_locations:
+        raise ValueError("the mjx_push package is not installed: a policy file that references its encoder "
+                         "needs it (or re-export the policy with the encoder embedded)")
+    return Path(list(spec.submodule_search_locations)[0]) / "assets" / "encoder.msgpack"
+
+
+def package_encoder_sha256() -> str:
+    return hashlib.sha256(package_encoder_path().read_bytes()).hexdigest()
+
+
+def _read_flax_msgpack(blob: bytes) -> dict:
+    """A flax `msgpack_serialize` blob of plain arrays -> nested dict of NumPy arrays (flax writes each
+    array as msgpack extension type 1 holding (shape, dtype name, C-order bytes))."""
+    import msgpack
+
+    def ext(code, data):
+        if code != 1:
+            raise ValueError(f"unsupported msgpack extension type {code}")
+        shape, dtype, buf = msgpack.unpackb(data, raw=True)
+        return np.frombuffer(buf, dtype=np.dtype(dtype.decode())).reshape(shape)
+
+    return msgpack.unpackb(blob, ext_hook=ext, raw=False, strict_map_key=False)
+
+
+def package_encoder_arrays(sha256: str | None, path: Path | str = "policy") -> dict[str, np.ndarray]:
+    """The package encoder's mean path as export arrays ("encoder/..."), after checking that its sha256
+    is the one a policy file recorded."""
+    enc_path = package_encoder_path()
+    blob = enc_path.read_bytes()
+    have = hashlib.sha256(blob).hexdigest()
+    if sha256 != have:
+        raise ValueError(f"policy file {path} was exported against the package encoder with sha256 {sha256}, "
+                         f"but this mjx-push ships {have} ({enc_path}): use the mjx-push version it was "
+                         "exported with, or re-export it with the encoder embedded")
+    tree = _read_flax_msgpack(blob)
+    return _flatten({k: v for k, v in tree.items() if k != "logvar"}, "encoder")
+
+
 # --- writing (training side) -------------------------------------------------------------------------
 def _flatten(tree: Any, prefix: str) -> dict[str, np.ndarray]:
     out = {}
@@ -237,8 +300,9 @@ def _pixel_convention() -> str:
     return " ".join(para.split())
 
 
-def build_metadata(policy) -> dict:
-    """The JSON record for a `train.run.Policy`."""
+def build_metadata(policy, provenance: dict | None = None) -> dict:
+    """The JSON record for a `train.run.Policy`; ``provenance`` (e.g. the run directory and the commit
+    that trained it) is recorded as given."""
     from importlib.metadata import PackageNotFoundError, version
 
     from mjx_push import encoder as enc
@@ -313,6 +377,7 @@ def build_metadata(policy) -> dict:
         },
         "task": {"episode_length": env.episode_length, "success_tau": env.success_tau},
         "scores": dict(policy.scores),
+        "provenance": dict(provenance or {}),
         "run_config": configio.to_dict(cfg),
     })
 
@@ -357,22 +422,37 @@ def load_as_policy(path: Path | str):
     return Policy(config, actor, jax.tree.map(jnp.asarray, encoder), dict(pf.metadata.get("scores", {})))
 
 
-def export_policy(policy, out: Path | str) -> dict:
-    """Write `policy` (a `train.run.Policy`) to the .npz `out`; returns the metadata written."""
+def export_policy(policy, out: Path | str, encoder: str = "embed", provenance: dict | None = None) -> dict:
+    """Write `policy` (a `train.run.Policy`) to the .npz `out`; returns the metadata written.
+    ``encoder`` "package" leaves the encoder out and records the package encoder's sha256 instead (the
+    policy must have been trained with that encoder: checked, array by array)."""
     out = Path(out)
     if out.suffix != ".npz":
         raise ValueError(f"out must be an .npz path, got {out}")
-    meta = build_metadata(policy)
+    if encoder not in ENCODER_SOURCES:
+        raise ValueError(f"encoder must be one of {ENCODER_SOURCES}, got {encoder!r}")
+    meta = build_metadata(policy, provenance)
     arrays = _flatten(policy.actor_params["params"], "actor")
     if "norm" in policy.actor_params:
         arrays.update(_flatten(policy.actor_params["norm"]["norm"], "actor/norm"))
-    arrays.update(_flatten({k: v for k, v in policy.encoder_params.items() if k != "logvar"}, "encoder"))
+    encoder_arrays = _flatten({k: v for k, v in policy.encoder_params.items() if k != "logvar"}, "encoder")
+    arrays.update(encoder_arrays)
     want = expected_shapes(meta)
     got = {k: v.shape for k, v in arrays.items()}
     if got != want:  # the networks changed without this format following: fail here, not in a reader
         raise ValueError(f"policy parameters do not match export format {FORMAT_VERSION}: "
                          f"missing {sorted(set(want) - set(got))[:4]}, unexpected {sorted(set(got) - set(want))[:4]}, "
                          f"wrong shapes {[k for k in set(want) & set(got) if want[k] != got[k]][:4]}")
+    if encoder == "package":
+        sha = package_encoder_sha256()
+        shipped = package_encoder_arrays(sha)
+        if any(not np.array_equal(shipped[k], v) for k, v in encoder_arrays.items()):
+            raise ValueError("encoder='package': this policy's encoder is not the one the package ships; "
+                             "export it with the encoder embedded")
+        meta["encoder"]["weights"] = {"source": "package", "sha256": sha}
+        arrays = {k: v for k, v in arrays.items() if k not in encoder_arrays}
+    else:
+        meta["encoder"]["weights"] = {"source": "embed"}
     arrays[METADATA_KEY] = np.frombuffer(json.dumps(meta, indent=1).encode("utf-8"), dtype=np.uint8)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(out.name + ".partial")

@@ -476,3 +476,83 @@ def test_summarize_mean_and_standard_error():
         summarize([])
     with pytest.raises(ValueError, match="episode 1 has no 'distance'"):
         summarize([eps[0], {"success": True, "reward": -1, "overshoot": 0}])
+
+
+# --- files that reference the package's encoder; shipped policies ------------------------------------
+@pytest.fixture(scope="module")
+def package_exported(tmp_path_factory):
+    """(embedded .npz, package-referencing .npz) of one eGRU trained with the package's own encoder."""
+    policy, _ = _policy("egru", enc.load(None), seed=11)
+    root = tmp_path_factory.mktemp("package")
+    embedded, referenced = root / "embedded.npz", root / "egru.npz"
+    pfile.export_policy(policy, embedded)
+    meta = pfile.export_policy(policy, referenced, encoder="package", provenance={"source": "runs/x", "commit": "abc"})
+    return policy, embedded, referenced, meta
+
+
+def test_package_encoder_reference_loads_the_same_policy_at_a_fraction_of_the_size(package_exported):
+    policy, embedded, referenced, meta = package_exported
+    assert meta["encoder"]["weights"] == {"source": "package", "sha256": pfile.package_encoder_sha256()}
+    assert meta["provenance"] == {"source": "runs/x", "commit": "abc"}
+    assert referenced.stat().st_size < 0.2 * embedded.stat().st_size
+    with np.load(referenced) as z:
+        assert not any(name.startswith("encoder/") for name in z.files)
+    a, b = pfile.load_npz(embedded), pfile.load_npz(referenced)
+    assert a.arrays.keys() == b.arrays.keys()
+    for k in a.arrays:
+        np.testing.assert_array_equal(a.arrays[k], b.arrays[k])
+    m, g = _moving_object("box", 3, steps=3)
+    p, q = NumpyPolicy.from_file(embedded), NumpyPolicy.from_file(referenced)
+    np.testing.assert_array_equal(p.act(m[0], g, np.array([0.4, 0.0])), q.act(m[0], g, np.array([0.4, 0.0])))
+
+
+def test_package_encoder_reference_is_refused_when_the_encoder_differs(package_exported, exported, tmp_path,
+                                                                       monkeypatch):
+    policy, _, _ = exported["vpm"]  # a random encoder, not the package's
+    with pytest.raises(ValueError, match="this policy's encoder is not the one the package ships"):
+        pfile.export_policy(policy, tmp_path / "x.npz", encoder="package")
+    with pytest.raises(ValueError, match="encoder must be one of"):
+        pfile.export_policy(policy, tmp_path / "x.npz", encoder="none")
+    # Another encoder under the package's name: the recorded sha256 no longer matches, and the file says so.
+    other = tmp_path / "encoder.msgpack"
+    other.write_bytes(pfile.package_encoder_path().read_bytes() + b"\0")
+    monkeypatch.setattr(pfile, "package_encoder_path", lambda: other)
+    with pytest.raises(ValueError, match="exported against the package encoder with sha256 .* but this mjx-push ships"):
+        pfile.load_npz(package_exported[2])
+
+
+def test_loading_a_package_referencing_file_never_imports_jax(package_exported):
+    code = (
+        "import sys, numpy as np\n"
+        "from export.numpy_policy import NumpyPolicy\n"
+        f"p = NumpyPolicy.from_file({str(package_exported[2])!r})\n"
+        "m = np.zeros((64, 64), bool); m[20:30, 20:30] = True\n"
+        "print(p.act(m, np.roll(m, 5, axis=0), np.array([0.4, 0.0])))\n"
+        "bad = [k for k in ('jax', 'jaxlib', 'flax', 'torch', 'mujoco') if k in sys.modules]\n"
+        "assert not bad, bad\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+
+
+def test_pretrained_names_resolve_for_eval_and_deploy(package_exported, tmp_path, monkeypatch):
+    from export import pretrained
+    from train.cli import resolve_policy
+
+    with pytest.raises(ValueError, match="unknown pretrained policy 'pretrained:egru': this mjx-push ships none"):
+        pretrained.resolve("pretrained:egru", tmp_path)
+    shipped = tmp_path / "shipped"
+    shipped.mkdir()
+    (shipped / "egru.npz").write_bytes(package_exported[2].read_bytes())
+    monkeypatch.setattr(pretrained, "DIRECTORY", shipped)
+    assert pretrained.available() == {"egru": shipped / "egru.npz"}
+    assert pretrained.resolve("runs/x") == Path("runs/x")  # not a reference: a path
+    with pytest.raises(ValueError, match="unknown pretrained policy 'pretrained:vpm': this mjx-push ships pretrained:egru"):
+        pretrained.resolve("pretrained:vpm")
+    policy = resolve_policy(Path("pretrained:egru"))
+    assert policy.config.agent == "egru"
+    np.testing.assert_array_equal(policy.actor_params["params"]["mean_head"]["kernel"],
+                                  package_exported[0].actor_params["params"]["mean_head"]["kernel"])
+    d = Deploy(policy=Path("pretrained:egru"), episodes=1)
+    d._check()
+    assert d.policy == shipped / "egru.npz"

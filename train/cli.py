@@ -249,6 +249,10 @@ def resolve_policy(path: Path, name: str = "POLICY"):
     .npz -> train.run.Policy. Errors name the option (`name`) and the path as the user typed it."""
     from train import run as run_mod
 
+    if str(path).startswith("pretrained:"):
+        from export.pretrained import resolve  # the CLI composes all three packages
+
+        path = resolve(path)
     path = Path(path)
     stem = path.with_suffix("") if path.suffix in (".msgpack", ".json") else path
     if not (path.exists() or stem.with_suffix(".msgpack").exists() or stem.with_suffix(".json").exists()):
@@ -275,8 +279,9 @@ class Eval(EvalOptions):
     defaults, episodes and table."""
 
     policy: Annotated[Path, tyro.conf.arg(metavar="POLICY"), tyro.conf.Positional]
-    """a run directory, a saved policy (best_policy.msgpack), an exported .npz, or `expert`: the
-    scripted expert on ground truth (a baseline, not a deployable policy)"""
+    """a run directory, a saved policy (best_policy.msgpack), an exported .npz, a shipped policy
+    (`pretrained:NAME`), or `expert`: the scripted expert on ground truth (a baseline, not a deployable
+    policy)"""
     batch: int = 20
     """episodes simulated in parallel (does not change the episodes)"""
     success_tau: Annotated[float | None, tyro.conf.arg(metavar="M", help_behavior_hint=(
