@@ -88,8 +88,8 @@ class MaskPipeline:
             c = tuple(self.crop)
             if len(c) != 4 or not all(isinstance(x, (int, np.integer)) for x in c):
                 raise ValueError(f"crop must be (top, left, bottom, right) integers or None, got {self.crop!r}")
-            t, l, b, r = c
-            if not (0 <= t < b and 0 <= l < r):
+            top, left, bottom, right = c
+            if not (0 <= top < bottom and 0 <= left < right):
                 raise ValueError(f"crop must satisfy 0 <= top < bottom and 0 <= left < right, got {self.crop!r}")
             object.__setattr__(self, "crop", tuple(int(x) for x in c))
         for name in ("open_size", "close_size"):
@@ -114,11 +114,11 @@ class MaskPipeline:
             raise ValueError(f"rgb must have dtype uint8, got {rgb.dtype}")
         img = rgb
         if self.crop is not None:
-            t, l, b, r = self.crop
+            top, left, bottom, right = self.crop
             h, w = rgb.shape[:2]
-            if b > h or r > w:
+            if bottom > h or right > w:
                 raise ValueError(f"crop {self.crop} lies outside the {h}x{w} image (bottom <= {h}, right <= {w})")
-            img = img[t:b, l:r]
+            img = img[top:bottom, left:right]
         if self.flip_vertical:
             img = img[::-1]
         if self.flip_horizontal:

@@ -1,15 +1,19 @@
-"""`mjx-push export` and `mjx-push deploy`: tyro dataclass commands, each with `run()` (registered by
-`train.cli.main` from `COMMANDS`)."""
+"""The `mjx-push` command line: `main` composes the training side's commands (`train.cli.COMMANDS`)
+with the export side's, `mjx-push export` and `mjx-push deploy` (tyro dataclass commands, each with
+`run()`), and `mjx-push eval` learns to read exported and shipped policies here. It sits in the last
+layer because it composes all three (mjx_push -> train -> export)."""
 
 from __future__ import annotations
 
 import dataclasses
 import json
+import sys
 from pathlib import Path
 from typing import Annotated, Literal
 
 import tyro
 
+from train import cli as train_cli
 from train.eval_options import EvalOptions
 
 VIDEO_FPS = 5  # one frame per environment step
@@ -180,3 +184,45 @@ def _open_video(path: Path):
 
 
 COMMANDS = {"export": Export, "deploy": Deploy}
+
+
+@dataclasses.dataclass(kw_only=True)
+class Eval(train_cli.Eval):
+    __doc__ = train_cli.Eval.__doc__
+
+    def resolve(self, path: Path):
+        """Also an exported .npz and a shipped policy (`pretrained:NAME`)."""
+        from export import pretrained
+        from export.policy_file import load_as_policy
+
+        path = pretrained.resolve(path)
+        if path.suffix != ".npz":
+            return super().resolve(path)
+        if not path.is_file():
+            raise ValueError(f"POLICY {path}: no such file or directory (a run directory, a saved policy "
+                             "best_policy.msgpack / .json or their stem, or an exported .npz)")
+        try:
+            return load_as_policy(path)
+        except ValueError as e:
+            raise ValueError(f"POLICY {path}: {e}") from None
+
+
+def main(argv: list[str] | None = None) -> int:
+    """The `mjx-push` entry point."""
+    commands = {**train_cli.COMMANDS, "eval": Eval, **COMMANDS}
+    from train import compile_cache
+
+    compile_cache.enable()
+    try:
+        # Boolean options are single flags (--resume, --no-progress), not --x / --no-x pairs.
+        cmd = tyro.extras.subcommand_cli_from_dict(commands, args=argv, prog="mjx-push",
+                                                   config=(tyro.conf.FlagCreatePairsOff,))
+        cmd.run()
+    except ValueError as e:  # configuration errors name the field: show them without a traceback
+        print(f"mjx-push: error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

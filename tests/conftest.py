@@ -26,7 +26,7 @@ if os.environ.get("MJX_PUSH_TEST_OPTIMIZE") != "1":
 
 # Longest files first. Two workers take whole files (--dist loadfile) in collection order, so a long
 # file collected last runs alone at the end: test_train_mjx.py, alphabetically last, kept one core
-# idle for its last ~4 minutes (cold run on 2 cores: 10.4 min, with these first: see the README).
+# idle for its last ~4 minutes (cold run on 2 cores: 10.4 min, with these first: docs/performance.md).
 _LONGEST_FIRST = ("test_train_mjx.py", "test_eval.py", "test_batch.py", "test_learner_loop.py", "test_expert.py")
 
 

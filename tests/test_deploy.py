@@ -22,15 +22,15 @@ def image(h, w, boxes=(), colour=BLUE, background=(20, 20, 20)):
     """(h, w, 3) uint8 with `colour` on the half-open pixel boxes (top, left, bottom, right)."""
     img = np.empty((h, w, 3), np.uint8)
     img[:] = background
-    for t, l, b, r in boxes:
-        img[t:b, l:r] = colour
+    for top, left, bottom, right in boxes:
+        img[top:bottom, left:right] = colour
     return img
 
 
 def box_mask(h, w, boxes):
     m = np.zeros((h, w), bool)
-    for t, l, b, r in boxes:
-        m[t:b, l:r] = True
+    for top, left, bottom, right in boxes:
+        m[top:bottom, left:right] = True
     return m
 
 

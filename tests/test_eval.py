@@ -2,7 +2,6 @@
 
 import train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
 
-import dataclasses
 import json
 import math
 
@@ -14,7 +13,7 @@ import pytest
 from mjx_push import scene
 from tests.helpers import B, HOME_XY, a_s_for, action_for, make_params
 from train import report
-from train.cli import main as cli_main
+from export.cli import main as cli_main
 from train.evaluate import EvalSpec, evaluator_for, sem, summarize
 from train.run import Policy
 

@@ -25,7 +25,7 @@ from mjx_push import encoder as enc
 from mjx_push import scene
 from mjx_push.env import EnvConfig
 from mjx_push.env import decode_substeps as jax_decode_substeps
-from train.config import AGENT_KINDS, AgentConfig
+from train.config import AGENT_KINDS
 from train.networks import make_networks
 from train.presets import make
 from train.run import Policy, save_policy
@@ -537,7 +537,7 @@ def test_loading_a_package_referencing_file_never_imports_jax(package_exported):
 
 def test_pretrained_names_resolve_for_eval_and_deploy(package_exported, tmp_path, monkeypatch):
     from export import pretrained
-    from train.cli import resolve_policy
+    from export.cli import Eval
 
     with pytest.raises(ValueError, match="unknown pretrained policy 'pretrained:egru': this mjx-push ships none"):
         pretrained.resolve("pretrained:egru", tmp_path)
@@ -549,7 +549,7 @@ def test_pretrained_names_resolve_for_eval_and_deploy(package_exported, tmp_path
     assert pretrained.resolve("runs/x") == Path("runs/x")  # not a reference: a path
     with pytest.raises(ValueError, match="unknown pretrained policy 'pretrained:vpm': this mjx-push ships pretrained:egru"):
         pretrained.resolve("pretrained:vpm")
-    policy = resolve_policy(Path("pretrained:egru"))
+    policy = Eval(policy=Path("pretrained:egru")).resolve(Path("pretrained:egru"))
     assert policy.config.agent == "egru"
     np.testing.assert_array_equal(policy.actor_params["params"]["mean_head"]["kernel"],
                                   package_exported[0].actor_params["params"]["mean_head"]["kernel"])

@@ -2,7 +2,6 @@
 Gymnasium's and SB3's checkers through `gymnasium.make` (on a headless machine too), goals and rewards,
 and SB3's hindsight relabelling with its default settings checked against the simulator's ground truth."""
 
-import dataclasses
 import os
 import subprocess
 import sys

@@ -17,9 +17,8 @@ import jax
 import numpy as np
 import pytest
 
-from mjx_push.env import EnvConfig
 from train import run as run_mod
-from train.cli import main as cli_main
+from export.cli import main as cli_main
 from train.toy import make_toy
 
 from tests.helpers import TOY_TAU as TAU

@@ -1,9 +1,10 @@
-"""The `mjx-push` command line. Subcommands are generated from typed dataclasses with tyro."""
+"""The training side's commands of `mjx-push` (train, eval, reproduce, train-encoder, demo): typed
+dataclasses that tyro turns into subcommands, each with `run()`. The entry point that composes them with
+the export side's commands is `export.cli.main` (the layers import one way: mjx_push -> train -> export)."""
 
 from __future__ import annotations
 
 import dataclasses
-import sys
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -245,24 +246,17 @@ class Train:
 
 
 def resolve_policy(path: Path, name: str = "POLICY"):
-    """A run directory (its best policy), a saved policy (.msgpack/.json or their stem) or an exported
-    .npz -> train.run.Policy. Errors name the option (`name`) and the path as the user typed it."""
+    """A run directory (its best policy) or a saved policy (.msgpack/.json or their stem) ->
+    train.run.Policy (exported files are the export side's: `export.cli.Eval`). Errors name the option
+    (`name`) and the path as the user typed it."""
     from train import run as run_mod
 
-    if str(path).startswith("pretrained:"):
-        from export.pretrained import resolve  # the CLI composes all three packages
-
-        path = resolve(path)
     path = Path(path)
     stem = path.with_suffix("") if path.suffix in (".msgpack", ".json") else path
     if not (path.exists() or stem.with_suffix(".msgpack").exists() or stem.with_suffix(".json").exists()):
         raise ValueError(f"{name} {path}: no such file or directory (a run directory, a saved policy "
                          "best_policy.msgpack / .json or their stem, or an exported .npz)")
     try:
-        if path.suffix == ".npz":
-            from export.policy_file import load_as_policy  # the CLI composes all three packages
-
-            return load_as_policy(path)
         if path.is_dir():
             if (path / "best_policy.msgpack").is_file():
                 return run_mod.load_policy(path / "best_policy")
@@ -294,6 +288,10 @@ class Eval(EvalOptions):
                                                "the policy; outputs/eval-expert.json for the expert)")] = None
     """JSON with the table and per-episode values"""
 
+    def resolve(self, path: Path):
+        """POLICY -> train.run.Policy (the export side's command adds exported and shipped files)."""
+        return resolve_policy(path)
+
     def run(self) -> None:
         import json
 
@@ -317,7 +315,7 @@ class Eval(EvalOptions):
 
             policy = ExpertPolicy(presets.make("vpm", self.preset or "cpu"))
         else:
-            policy = resolve_policy(self.policy)
+            policy = self.resolve(self.policy)
         console = Console()
         name = f"expert ({self.preset or 'cpu'} action box)" if is_expert else policy.config.agent
         tau = spec.success_tau or policy.config.env.success_tau
@@ -387,25 +385,5 @@ class Reproduce:
         console.print((path.parent / "report.md").read_text(), markup=False, soft_wrap=True)  # verbatim Markdown
 
 
-def main(argv: list[str] | None = None) -> int:
-    commands = {"train": Train, "eval": Eval, "reproduce": Reproduce, "train-encoder": TrainEncoder, "demo": Demo}
-    # export's commands (export, deploy): the CLI is the one place that composes all three packages.
-    from export.cli import COMMANDS as export_commands
-
-    commands.update(export_commands)
-    from train import compile_cache
-
-    compile_cache.enable()
-    try:
-        # Boolean options are single flags (--resume, --no-progress), not --x / --no-x pairs.
-        cmd = tyro.extras.subcommand_cli_from_dict(commands, args=argv, prog="mjx-push",
-                                                   config=(tyro.conf.FlagCreatePairsOff,))
-        cmd.run()
-    except ValueError as e:  # configuration errors name the field: show them without a traceback
-        print(f"mjx-push: error: {e}", file=sys.stderr)
-        return 2
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+# The training side's subcommands (`export.cli.main` adds the export side's and runs them).
+COMMANDS = {"train": Train, "eval": Eval, "reproduce": Reproduce, "train-encoder": TrainEncoder, "demo": Demo}

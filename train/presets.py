@@ -15,7 +15,7 @@ the encoder, with the presets of `mjx-push train --preset`.
   builds on and HER pushing in general need), with the ``cpu`` preset's learner, sized for one GPU.
 
 The ``cpu``, ``cpu-long`` and ``paper`` presets use the learner settings chosen by measurement
-(`benchmarks/learning_ladder.py`; the README lists them and how each was chosen): a smaller action box
+(`benchmarks/learning_ladder.py`; docs/results.md lists them and how each was chosen): a smaller action box
 with a stiffer controller, input normalisation, a privileged LayerNorm critic, expert demonstrations
 and behaviour cloning towards the expert's action at every stored step (DAgger-style labels; the
 Q-filter is off: with it the young critic vetoed most labels and nothing learned). eGRU differs from uGRU only in the environment: the improved force
