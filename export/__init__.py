@@ -9,7 +9,7 @@
 - `camera`: the real camera's image -> mask pipeline; `deploy`: the robot / camera / policy interfaces and
   the deployment loop, with a simulated robot and camera.
 - `sim_eval` and `metrics`: the evaluation protocol (docs/task.md section 7) in CPU MuJoCo; `cli`: the
-  `mjx-push export` and `mjx-push deploy` commands. See export/DEPLOY.md.
+  `mjx-push export` and `mjx-push deploy` commands. See docs/deploy.md.
 
 Importing this package imports neither JAX nor MuJoCo (a NumPy policy on a robot needs neither).
 """

@@ -5,7 +5,7 @@ damped pseudo-inverse, hold gain on the tilt and height rows, clipping to the ve
 distance left to each joint limit, times the safety scale. Both tilt laws ("axis", "dot") are ported.
 The configuration is the same `ControllerConfig` the MJX environment uses. `law` takes plain arrays
 (flange pose, Jacobians, joint positions) so that a real robot adapter can run the very same law at 1 kHz
-with its own kinematics (see export/DEPLOY.md).
+with its own kinematics (see docs/deploy.md).
 """
 
 from __future__ import annotations

@@ -21,7 +21,7 @@ controller at every 1 ms substep; camera: the rendered under-table view, which t
 `MaskPipeline` turns back into the simulator's mask), so the whole loop can be tested without hardware.
 
 Connecting a real Panda (no robot library is imported anywhere in this package; full notes in
-export/DEPLOY.md): implement `Robot` with panda-py, running the simulator's own task-space velocity law
+docs/deploy.md): implement `Robot` with panda-py, running the simulator's own task-space velocity law
 (`export.controller_np.law`) at 1 kHz in panda-py's `IntegratedVelocity` joint-velocity controller, so the
 real arm follows targets as the simulated one does (a sketch; check the API names against your panda-py):
 
