@@ -1,4 +1,4 @@
-"""The mask autoencoder (mjx_push/encoder.py), its trainer (train/encoder.py) and the shipped weights."""
+"""The mask autoencoder (mjx_push/encoder.py), its trainer (train/encoder_training.py) and the shipped weights."""
 
 import train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
 
@@ -9,7 +9,7 @@ import pytest
 
 from mjx_push import encoder as enc
 from mjx_push import scene
-from train.encoder import EncoderTrainConfig, loss_fn
+from train.encoder_training import EncoderTrainConfig, loss_fn
 
 
 @pytest.fixture(scope="module")

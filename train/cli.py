@@ -33,7 +33,7 @@ class Demo:
         from rich.console import Console
         from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-        from mjx_push import demo, objects
+        from mjx_push import objects, throughput
         from mjx_push.env import EnvConfig
 
         cfg = EnvConfig(objects=objects.ObjectConfig(shape=self.shape))
@@ -47,7 +47,7 @@ class Demo:
             def progress(i, total, sps):
                 bar.update(task, completed=i, sps=f"{sps:,.0f} substeps/s" if sps else "compiling...")
 
-            stats = demo.run(cfg, self.num_envs, self.steps, self.seed, self.out, progress)
+            stats = throughput.run(cfg, self.num_envs, self.steps, self.seed, self.out, progress)
         for k, v in stats.items():
             console.print(f"  {k}: {v}")
 
@@ -77,7 +77,7 @@ class TrainEncoder:
         from rich.console import Console
 
         from mjx_push import encoder as enc
-        from train.encoder import EncoderTrainConfig, train_encoder
+        from train.encoder_training import EncoderTrainConfig, train_encoder
 
         cfg = EncoderTrainConfig(steps=self.steps, batch_size=self.batch_size, lr=self.lr,
                                  kl_weight=self.kl_weight, eval_masks=self.eval_masks,

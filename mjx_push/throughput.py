@@ -1,4 +1,5 @@
-"""Scripted demo: a batch of scenes stepped with random actions; writes a PNG of object and goal masks."""
+"""The throughput demo behind `mjx-push demo`: a batch of scenes stepped with random actions (substeps/s); writes
+a PNG of object and goal masks. ("Demo" here is a show of the scene, not expert demonstrations.)"""
 
 from __future__ import annotations
 
