@@ -17,7 +17,7 @@ from orbax.checkpoint._src.path import atomicity
 
 from tests.helpers import TOY_TAU, toy_run_config
 from train import run as run_mod
-from train.toy import make_toy
+from tests.toy import make_toy
 
 # The test process's compilation cache (tests/conftest.py): the toy trainer is compiled there already.
 jax.config.update("jax_compilation_cache_dir",

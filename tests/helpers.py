@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -79,7 +81,7 @@ TOY_TAU = 0.025
 
 
 def toy_run_config(encoder, kind="ugru", seed=0):
-    """A run of the toy task (train/toy.py): 5 batches of 4 environments x 10 steps, evaluations at 80,
+    """A run of the toy task (tests/toy.py): 5 batches of 4 environments x 10 steps, evaluations at 80,
     160 and 200 env steps. The measured presets' learner (normalisation, privileged critic,
     demonstrations with behaviour cloning), so checkpoints and saved policies carry all it adds."""
     from train.config import AgentConfig, DemoConfig, LoopConfig, ReplayConfig, SACConfig, TrainConfig
@@ -96,3 +98,12 @@ def toy_run_config(encoder, kind="ugru", seed=0):
     )
     return RunConfig(agent=kind, preset="smoke", train=train_cfg,
                      env=EnvConfig(episode_length=10, success_tau=TOY_TAU), encoder=encoder)
+
+
+def latest_state(run_dir, cfg, adapter):
+    """The TrainState of a run's latest checkpoint (`adapter`: the environment it trained on)."""
+    from train import run as run_mod
+    from train.loop import make_train
+
+    trainer = make_train(cfg.train, adapter)
+    return run_mod.Checkpoints(Path(run_dir) / "checkpoints").restore(trainer.init(jax.random.PRNGKey(0)), cfg)[0]

@@ -16,7 +16,7 @@ from train.config import AgentConfig, DemoConfig, LoopConfig, ReplayConfig, SACC
 from train.loop import Runner, make_train, spread_envs, train as run_train
 from train.networks import make_networks
 from train.sac import bc_loss_value, make_actor_loss, make_critic_loss
-from train.toy import make_toy
+from tests.toy import make_toy
 
 T = 6
 

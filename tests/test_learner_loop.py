@@ -1,4 +1,4 @@
-"""The jitted collect + update loop and its driver (train/loop.py) on the toy task (train/toy.py).
+"""The jitted collect + update loop and its driver (train/loop.py) on the toy task (tests/toy.py).
 
 The learning tests are the end-to-end check of SAC + HER: a VPM and a GRU agent must reach >= 90 %
 deterministic success on the toy goal-reaching task within about a minute of CPU each.
@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from train.config import AgentConfig, LoopConfig, ReplayConfig, SACConfig, TrainConfig
-from train.loop import EnvAdapter, make_train, train as run_train
-from train.toy import make_toy
+from train.loop import EnvAdapter, Runner, make_train, train as run_train
+from tests.toy import make_toy
 
 TAU = 0.025  # toy success radius (the real task's is 0.01)
 HELD_OUT = jax.random.PRNGKey(12345)  # evaluation episodes the best-model selection never saw
@@ -46,12 +46,13 @@ def learned(request):
     kind, steps = request.param
     cfg = toy_config(kind, steps)
     adapter = make_toy(success_tau=TAU)
-    trainer = make_train(cfg, adapter)
-    initial_actor = trainer.init(jax.random.PRNGKey(0)).sac.actor_params
+    runner = Runner(make_train(cfg, adapter))
+    trainer = runner.trainer
+    initial_actor = jax.tree.map(jnp.copy, trainer.init(jax.random.PRNGKey(0)).sac.actor_params)
     t0 = time.perf_counter()
-    state, history = run_train(jax.random.PRNGKey(0), cfg, adapter, trainer=trainer)
+    state, history = run_train(jax.random.PRNGKey(0), cfg, adapter, runner=runner)
     wall = time.perf_counter() - t0
-    evaluate = jax.jit(trainer.evaluate)
+    evaluate = runner.evaluate  # the episodes of `key` (the toy task has no shared evaluation episodes)
     print(f"\n{kind}: final eval {history[-1]['eval/success_rate']:.2f}, best {float(state.best_eval_success):.2f}, "
           f"{wall:.1f} s")
     return cfg, trainer, state, history, evaluate, initial_actor

@@ -19,10 +19,10 @@ import pytest
 
 from train import run as run_mod
 from export.cli import main as cli_main
-from train.toy import make_toy
+from tests.toy import make_toy
 
 from tests.helpers import TOY_TAU as TAU
-from tests.helpers import toy_run_config
+from tests.helpers import latest_state, toy_run_config
 
 
 @pytest.fixture(scope="module")
@@ -81,7 +81,7 @@ def test_resume_refuses_a_different_configuration(full_run, toy):
         run_mod.run(other, d, adapter=toy, resume=True)
     # The checkpoint itself also refuses a state of another shape or configuration.
     with pytest.raises(ValueError, match="different configuration"):
-        run_mod.latest_state(d, other, toy)
+        latest_state(d, other, toy)
 
 
 def test_existing_run_dir_is_not_overwritten(full_run, toy):
@@ -107,7 +107,7 @@ def test_corrupt_checkpoint_gives_a_clear_error(full_run, tmp_path, toy):
     for p in files:
         p.write_bytes(b"\x00garbage" * 4)
     with pytest.raises(ValueError, match="corrupt"):
-        run_mod.latest_state(copy, cfg, toy)
+        latest_state(copy, cfg, toy)
 
 
 def test_policy_files_are_validated(full_run, tmp_path):

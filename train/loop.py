@@ -11,12 +11,12 @@
 * ``learn(state, episodes, key)``: add the episodes to replay, then ``lax.scan`` over
   ``num_envs * episode_len * utd`` SAC updates (skipped until warm-up is over and replay holds at
   least ``batch_size`` valid transitions); ``split_keys`` derives the two keys from the state's.
-* ``evaluate(actor_params, key)``: ``eval_episodes`` deterministic episodes -> success rate, mean
-  episode reward; ``select`` keeps the best actor params by mean reward (the reference's selection).
+* ``select(state, eval_stats)`` keeps the best actor params by mean evaluation reward (the reference's
+  selection).
 
 ``Runner`` jits ``rollout`` once and ``learn`` once and drives them from Python, one call each per
-episode batch, so logging, progress bars and checkpoints sit between iterations; ``train`` is its
-plain loop. Everything a checkpoint must hold to resume lives in the one ``TrainState`` pytree
+episode batch, so logging, progress bars and checkpoints sit between iterations; its ``evaluate`` runs
+``eval_episodes`` deterministic episodes through the same rollout; ``train`` is its plain loop. Everything a checkpoint must hold to resume lives in the one ``TrainState`` pytree
 (environments are reset at every batch, so no environment state outlives an iteration).
 
 The environment hides behind ``EnvAdapter`` (pure functions), so the same code runs the toy task in
@@ -145,15 +145,12 @@ class Trainer:
     config: TrainConfig
     networks: Networks
     init: Callable[[jax.Array], TrainState]
-    collect: Callable  # (actor_params, key, num_envs, random_actions, deterministic, expert_envs) -> (episodes, stats)
-    rollout: Callable  # (actor_params, key, random_actions, deterministic, expert_envs) -> (episodes, stats)
+    rollout: Callable  # (actor_params, key, random_actions, deterministic, expert_envs, episodes) -> (episodes, stats)
     split_keys: Callable[[TrainState], tuple[TrainState, jax.Array, jax.Array]]
     learn: Callable[[TrainState, dict, jax.Array], tuple[TrainState, dict]]
-    evaluate: Callable[[Params, jax.Array], dict]
     select: Callable[[TrainState, dict], tuple[TrainState, dict]]
     eval_key: jax.Array
     num_eval_chunks: int
-    total_updates: int
     rollout_mesh: Any = None  # the devices the training rollout's environments are split over
     adapter: EnvAdapter | None = None  # the environment (its expert groups and evaluation episodes)
 
@@ -432,14 +429,6 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
 
     num_eval_chunks = -(-loop.eval_episodes // N)
 
-    def evaluate(actor_params, key) -> dict:
-        """``eval_episodes`` deterministic episodes, run as ceil(eval_episodes / num_envs) chunks of
-        ``num_envs`` (chunk c uses fold_in(key, c)); means over the first ``eval_episodes``."""
-        keys = jax.vmap(lambda c: jax.random.fold_in(key, c))(jnp.arange(num_eval_chunks))
-        stats = jax.lax.map(lambda k: rollout(actor_params, k, False, True, False)[1], keys)
-        flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), stats)
-        return summarize(flat, loop.eval_episodes)
-
     def select(ts: TrainState, stats: dict) -> tuple[TrainState, dict]:
         """Keep the actor params with the best mean evaluation reward so far (`improves`)."""
         better = improves(stats["mean_reward"], stats["success_rate"], ts.best_eval_reward, ts.best_eval_success)
@@ -458,15 +447,12 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
         config=config,
         networks=nets,
         init=init,
-        collect=collect,
         rollout=rollout,
         split_keys=split_keys,
         learn=learn,
-        evaluate=evaluate,
         select=select,
         eval_key=eval_key,
         num_eval_chunks=num_eval_chunks,
-        total_updates=total_updates,
     )
 
 

@@ -388,22 +388,3 @@ def _run_locked(cfg, run_dir, resume, adapter, checkpoint_every, stop_after, on_
     }
     atomic.write_text(run_dir / "summary.json", json.dumps(summary, indent=2) + "\n")
     return summary, state
-
-
-def latest_state(run_dir: Path, cfg: RunConfig, adapter: EnvAdapter | None = None) -> TrainState:
-    """The TrainState of the run's latest checkpoint (for inspection and tests)."""
-    trainer = make_train(cfg.train, adapter if adapter is not None else _dummy_adapter(cfg))
-    return Checkpoints(Path(run_dir) / "checkpoints").restore(trainer.init(jax.random.PRNGKey(0)), cfg)[0]
-
-
-def _dummy_adapter(cfg: RunConfig) -> EnvAdapter:
-    # make_train only needs the adapter to build rollouts, which restoring never calls, the width of the
-    # pushing scene's ground-truth state (the privileged critic's input) and whether it has an expert
-    # (demonstrations: the replay buffer then holds the expert's labels).
-    from train.push_task import PRIV_DIM
-
-    def expert(step_obs, info):
-        raise RuntimeError("a restored state's adapter cannot roll out")
-
-    return EnvAdapter(reset=None, step=None, success_tau=cfg.env.success_tau, priv_dim=PRIV_DIM, expert=expert)
-
