@@ -20,48 +20,10 @@ Interfaces (`typing.Protocol`, so any object with these methods fits):
 controller at every 1 ms substep; camera: the rendered under-table view, which the default
 `MaskPipeline` turns back into the simulator's mask), so the whole loop can be tested without hardware.
 
-Connecting a real Panda (no robot library is imported anywhere in this package; full notes in
-docs/deploy.md): implement `Robot` with panda-py, running the simulator's own task-space velocity law
-(`export.controller_np.law`) at 1 kHz in panda-py's `IntegratedVelocity` joint-velocity controller, so the
-real arm follows targets as the simulated one does (a sketch; check the API names against your panda-py):
-
-    import numpy as np, panda_py
-    from panda_py import controllers, libfranka
-    from export.controller_np import law
-    from mjx_push.controller import ControllerConfig
-    from mjx_push.scene import HOME_QPOS
-
-    class PandaPyRobot:
-        def __init__(self, host: str, cfg: ControllerConfig = ControllerConfig(safety_scale=0.5)):
-            self.panda, self.cfg = panda_py.Panda(host), cfg
-            self.model = self.panda.get_model()
-            self.home()
-
-        def _flange(self, s):  # flange pose and Jacobian in the base frame (independent of Desk's EE frame)
-            T = np.asarray(self.model.pose(libfranka.Frame.kFlange, s)).reshape(4, 4, order="F")
-            J = np.asarray(self.model.zero_jacobian(libfranka.Frame.kFlange, s)).reshape(6, 7, order="F")
-            return T, J
-
-        def flange_xy(self):
-            return self._flange(self.panda.get_state())[0][:2, 3]
-
-        def move_to(self, xyz):
-            self.target = np.asarray(xyz, dtype=float)
-
-        def wait_ms(self, n: int):
-            with self.panda.create_context(frequency=1000, max_runtime=n / 1000) as ctx:
-                while ctx.ok():
-                    s = self.panda.get_state()
-                    T, J = self._flange(s)
-                    dq = law(T[:3, 3], T[:3, 2], J[:3, :6], J[3:, :6], np.asarray(s.q), self.target, self.cfg)
-                    self.ctrl.set_control(dq)
-            self.ctrl.set_control(np.zeros(7))
-
-        def home(self):
-            self.panda.move_to_joint_position(HOME_QPOS)  # stops any running controller
-            self.ctrl = controllers.IntegratedVelocity()
-            self.panda.start_controller(self.ctrl)
-            self.target = self._flange(self.panda.get_state())[0][:3, 3]
+Connecting a real Panda (no robot library is imported by this package; full notes in docs/deploy.md):
+implement `Robot` with panda-py, running the simulator's own task-space velocity law
+(`export.controller_np.law`) at 1 kHz in panda-py's joint-velocity controller, so the real arm follows
+targets as the simulated one does; `export/panda_py_robot.py` is a sketch of that class.
 """
 
 from __future__ import annotations

@@ -306,3 +306,14 @@ def test_sim_robot_home_and_validation():
     with pytest.raises(ValueError, match="target"):
         robot.move_to(np.zeros(2))
 
+
+
+def test_the_panda_py_robot_sketch_fits_the_robot_interface():
+    """export/panda_py_robot.py imports without panda-py and has every method `Robot` asks for (it is
+    never run here: there is no arm)."""
+    import sys
+
+    from export.panda_py_robot import PandaPyRobot
+
+    assert isinstance(object.__new__(PandaPyRobot), Robot)
+    assert "panda_py" not in sys.modules  # imported when a robot is made, not before
