@@ -84,13 +84,6 @@ class ObjectConfig:
             return scene.SHAPES
         return ("cylinder",) if self.shape == "cylinder" else ("box",)
 
-    @property
-    def mass_range(self) -> tuple[float, float]:
-        """Range the mass is actually drawn from (improved mode widens it, docs/task.md section 4)."""
-        if self.mode == "uniform":
-            return self.mass
-        return (self.mass[0] * self.friction[0] / self.mu_k, self.mass[1] * self.friction[1] / self.mu_k)
-
 
 @struct.dataclass
 class ObjectParams:

@@ -98,8 +98,8 @@ OBJECT_DAMPING = 0.01
 
 @dataclass(frozen=True)
 class SolverSettings:
-    """MJX solver settings. Defaults chosen for speed; `benchmarks/physics_validity.py` and
-    `tests/test_physics.py` check that they keep the scene stable (docs/task.md section 8)."""
+    """MJX solver settings. Defaults chosen for speed; `tests/test_physics.py` checks that they keep the
+    scene stable (docs/task.md section 8)."""
 
     iterations: int = 6
     ls_iterations: int = 6
