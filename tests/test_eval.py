@@ -284,6 +284,18 @@ def test_reproduce_reuses_the_run_and_caches_each_evaluation(tiny_egru_run, eval
     log, _ = go()
     assert "reusing evaluation" not in log and json.loads(cache.read_text())["summary"] == rec["summary"]
 
+    # The report from whatever has finished: the eGRU run (its evaluation reused), not the absent VPM run.
+    lines: list[str] = []
+    rep.reproduce("smoke", 1, out, episodes=2, agents=("egru", "vpm"), shapes=("cylinder",), log=lines.append,
+                  config_hook=lambda _: cfg, expert=False, report_only=True)
+    assert "reusing evaluation" in "\n".join(lines)
+    assert f"{out / 'runs' / 'vpm-s0'} has not finished: left out of the report" in lines
+    results = json.loads((out / "results.json").read_text())
+    assert list(results["combined"]) == ["egru"] and results["meta"]["missing_runs"] == ["vpm-s0"]
+    assert "Not finished when this report was built, so not in it: vpm-s0." in (out / "report.md").read_text()
+    with pytest.raises(ValueError, match="no finished run"):
+        rep.reproduce("smoke", 1, tmp_path / "empty", episodes=2, agents=("vpm",), report_only=True, expert=False)
+
     # New weights under the same name: the cached evaluation no longer belongs to them.
     policy = run_mod.load_policy(run_dir / name)
     other = make_networks(cfg.train.agent).init_actor(jax.random.PRNGKey(7), cfg.env.episode_length)
@@ -337,3 +349,20 @@ def test_run_jobs_uses_worker_processes_keeps_order_and_names_a_failure():
         run_jobs(pid_and_square, [((2,), {}), ((-1,), {})], jobs=2)
     with pytest.raises(ValueError, match="jobs must be >= 1"):
         run_jobs(pid_and_square, calls, jobs=0)
+
+
+def test_reproduce_plan_lists_one_command_per_job_then_the_report(tmp_path, capsys):
+    from train import reproduce as rep
+
+    lines = rep.plan("cpu-long", 2, tmp_path, ("vpm", "egru"))
+    base = f"mjx-push reproduce --budget cpu-long --out {tmp_path}"
+    assert lines == [f"{base} --job vpm:0", f"{base} --job egru:0", f"{base} --job vpm:1", f"{base} --job egru:1",
+                     f"{base} --job expert", f"{base} --seeds 2 --agents vpm egru --report-only"]
+    plan_file = tmp_path / "plan.txt"
+    assert cli_main(["reproduce", "--budget", "cpu-long", "--seeds", "2", "--agents", "vpm", "egru", "--out",
+                     str(tmp_path), "--plan", str(plan_file)]) == 0
+    assert plan_file.read_text().splitlines() == lines
+    assert cli_main(["reproduce", "--job", "dqn:0"]) == 2
+    assert "--job must be AGENT:SEED" in capsys.readouterr().err
+    assert cli_main(["reproduce", "--job", "vpm:0", "--report-only"]) == 2
+    assert "exclude each other" in capsys.readouterr().err

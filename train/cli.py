@@ -367,11 +367,18 @@ class Reproduce:
     jobs: int = 1
     """agents trained and evaluated at once, each in its own process (on a CPU 2 overlaps one job's
     single-core compilation and updates with the other's work; on one GPU keep 1)"""
+    plan: Annotated[Path | None, tyro.conf.arg(metavar="FILE", help_behavior_hint="(default: none)")] = None
+    """write one command per job (each agent and seed; the expert's row) and the report's command to
+    FILE, one a line, for a scheduler to run on any machine that shares --out; runs nothing"""
+    job: Annotated[str | None, tyro.conf.arg(metavar="AGENT:SEED|expert", help_behavior_hint="(default: all)")] = None
+    """run one job of the plan only: train and evaluate AGENT with SEED, or evaluate the expert"""
+    report_only: bool = False
+    """train nothing: build the report from the runs that have finished (evaluating them if needed)"""
 
     def run(self) -> None:
         from rich.console import Console
 
-        from train.reproduce import reproduce
+        from train import reproduce as rep
 
         console = Console()
         out = self.out or Path(f"outputs/reproduce-{self.budget}")
@@ -379,8 +386,30 @@ class Reproduce:
             raise ValueError(f"--episodes must be >= 1, got {self.episodes}")
         if self.jobs < 1:
             raise ValueError(f"--jobs must be >= 1, got {self.jobs}")
-        path = reproduce(self.budget, self.seeds, out, self.episodes, tuple(self.agents), log=console.print,
-                         jobs=self.jobs)
+        if self.seeds < 1:
+            raise ValueError(f"--seeds must be >= 1, got {self.seeds}")
+        if sum(x is not None and x is not False for x in (self.plan, self.job, self.report_only or None)) > 1:
+            raise ValueError("--plan, --job and --report-only exclude each other")
+        if self.plan is not None:
+            lines = rep.plan(self.budget, self.seeds, out, tuple(self.agents), self.episodes)
+            self.plan.parent.mkdir(parents=True, exist_ok=True)
+            self.plan.write_text("\n".join(lines) + "\n")
+            console.print(f"{len(lines)} commands written to {self.plan}:", *lines, sep="\n", markup=False)
+            return
+        episodes = self.episodes or rep.EVAL_EPISODES[self.budget]
+        if self.job is not None:
+            if self.job == "expert":
+                rep.expert_job(self.budget, out, episodes, rep.PAPER_SHAPES, "difficult", log=console.print)
+                return
+            agent, sep, seed = self.job.partition(":")
+            if not sep or agent not in rep.AGENTS or not seed.isdigit():
+                raise ValueError(f"--job must be AGENT:SEED (AGENT one of {rep.AGENTS}, SEED an int >= 0) or "
+                                 f"'expert', got {self.job!r}")
+            rep.agent_job(self.budget, agent, int(seed), out, episodes, rep.PAPER_SHAPES, "difficult",
+                          log=console.print)
+            return
+        path = rep.reproduce(self.budget, self.seeds, out, self.episodes, tuple(self.agents), log=console.print,
+                             jobs=self.jobs, report_only=self.report_only)
         console.print(f"report: {path}")
         console.print((path.parent / "report.md").read_text(), markup=False, soft_wrap=True)  # verbatim Markdown
 

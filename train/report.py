@@ -218,6 +218,9 @@ is the one evaluated above):
     combined = {a: {s: combine(v) for s, v in per_shape.items()} for a, per_shape in results.items()}
     (out_dir / "results.json").write_text(json.dumps({"meta": meta, "per_seed": results, "combined": combined,
                                                       "training": training}, indent=2) + "\n")
+    missing = meta.get("missing_runs") or []
+    missing_text = (f"\nNot finished when this report was built, so not in it: {', '.join(missing)}.\n"
+                    if missing else "")
     seeds = meta.get("seeds", 1)
     err = "standard error across seeds" if seeds > 1 else "standard error over test episodes"
     text = f"""# mjx-push reproduction: {meta.get('budget', '?')} budget
@@ -227,7 +230,7 @@ Agents trained with `mjx-push reproduce --budget {meta.get('budget')} --seeds {s
 (the same seeds for every agent). Values are mean ± {err}.
 
 {table(results)}
-
+{missing_text}
 ![metrics per shape and agent](metrics.png)
 
 Sliding friction force densities of the two samplers (paper Fig. 4), drawn from `mjx_push.objects`:

@@ -7,6 +7,11 @@ interrupted one resumed from its checkpoint, and each finished evaluation is cac
 a crash redoes nothing. `jobs > 1` trains and evaluates that many agents (and the scripted expert) at
 once in worker processes: each process splits its environments over every core, but compilation and the
 learner's updates run on one core, so on a CPU two jobs overlap what one leaves idle.
+
+Across machines: `plan` lists one command per job (an agent and seed trained and evaluated, or the
+expert's row) and the report's command, for any scheduler to run wherever `OUT` is shared;
+`reproduce(..., report_only=True)` builds the report from the runs that have finished (evaluating any
+not yet evaluated) and lists the others as missing.
 """
 
 from __future__ import annotations
@@ -131,6 +136,14 @@ def expert_job(budget: str, out: Path, episodes: int, shapes: tuple[str, ...], s
     return summaries
 
 
+def run_dir_of(out: Path, agent: str, seed: int) -> Path:
+    return Path(out) / "runs" / f"{agent}-s{seed}"
+
+
+def is_finished(run_dir: Path) -> bool:
+    return (Path(run_dir) / "summary.json").is_file() and (Path(run_dir) / "best_policy.msgpack").is_file()
+
+
 def agent_job(
     budget: str,
     agent: str,
@@ -141,13 +154,18 @@ def agent_job(
     setting: str,
     log: Callable[[str], None] = print,
     config_hook: Callable[[presets.RunConfig], presets.RunConfig] | None = None,
+    train: bool = True,
 ) -> dict[str, dict]:
     """Train (or reuse / resume) one agent and seed, then evaluate it per shape: {shape: summary}.
-    Module-level and picklable, so `--jobs` can run it in a worker process."""
+    ``train`` False evaluates a finished run only. Module-level and picklable, so `--jobs` can run it in
+    a worker process."""
     cfg = presets.make(agent, budget, seed)
     cfg = config_hook(cfg) if config_hook else cfg
-    run_dir = Path(out) / "runs" / f"{agent}-s{seed}"
-    train_or_reuse(cfg, run_dir, log)
+    run_dir = run_dir_of(out, agent, seed)
+    if train:
+        train_or_reuse(cfg, run_dir, log)
+    elif not is_finished(run_dir):
+        raise ValueError(f"{run_dir} has not finished training")
     summaries = {}
     for shape in shapes:
         spec = EvalSpec(setting=setting, shape=shape, episodes=episodes, batch=min(episodes, 20))
@@ -189,6 +207,18 @@ def _log_line(prefix: str, line: str) -> None:
     print(f"{prefix}{line}", flush=True)
 
 
+def plan(budget: str, seeds: int, out: Path, agents: tuple[str, ...] = SCHEDULE,
+         episodes: int | None = None) -> list[str]:
+    """One shell command per job (each agent and seed: train, then evaluate; the expert's row), then the
+    command that builds the report from them. The jobs are independent: run them anywhere that shares
+    `out`, in any order, and the report last (or at any time, for the runs finished so far)."""
+    ep = f" --episodes {episodes}" if episodes else ""
+    base = f"mjx-push reproduce --budget {budget} --out {out}{ep}"
+    jobs = [f"{base} --job {agent}:{seed}" for seed in range(seeds) for agent in dict.fromkeys(agents)]
+    return jobs + [f"{base} --job expert", f"{base} --seeds {seeds} --agents {' '.join(dict.fromkeys(agents))} "
+                   "--report-only"]
+
+
 def reproduce(
     budget: str,
     seeds: int,
@@ -201,10 +231,13 @@ def reproduce(
     config_hook: Callable[[presets.RunConfig], presets.RunConfig] | None = None,
     jobs: int = 1,
     expert: bool = True,
+    report_only: bool = False,
 ) -> Path:
     """Train + evaluate every agent for `seeds` seeds (`jobs` of them at a time, in worker processes
     when > 1), and the scripted expert as a baseline row (``expert``); returns the report's path.
-    `config_hook` lets tests shrink the runs (it must be picklable when jobs > 1)."""
+    ``report_only``: train nothing; the report holds the runs that have finished (evaluated here if not
+    yet) and names the others. `config_hook` lets tests shrink the runs (it must be picklable when
+    jobs > 1)."""
     if seeds < 1:
         raise ValueError(f"seeds must be >= 1, got {seeds}")
     for a in agents:
@@ -215,27 +248,37 @@ def reproduce(
     t0 = time.perf_counter()
     agents = tuple(dict.fromkeys(agents))  # scheduling order as given, once each
     items = [(agent, seed) for seed in range(seeds) for agent in agents]
+    missing = []
+    if report_only:
+        missing = [(a, s) for a, s in items if not is_finished(run_dir_of(out, a, s))]
+        items = [i for i in items if i not in missing]
+        for a, s in missing:
+            log(f"{run_dir_of(out, a, s)} has not finished: left out of the report")
+        if not items:
+            raise ValueError(f"no finished run in {out / 'runs'} for agents {agents} and {seeds} seed(s)")
     calls = []
     for agent, seed in items:
         # In a worker, `log` (often a rich console) stays behind: lines go to stdout, prefixed.
         job_log = log if jobs == 1 else functools.partial(_log_line, f"[{agent} s{seed}] ")
         calls.append((("agent", budget, agent, seed, out, episodes, shapes, setting),
-                      {"log": job_log, "config_hook": config_hook}))
+                      {"log": job_log, "config_hook": config_hook, "train": not report_only}))
     if expert:  # last: the first worker to finish an agent takes it, beside the last agents
         calls.append((("expert", budget, out, episodes, shapes, setting),
                       {"log": log if jobs == 1 else functools.partial(_log_line, "[expert] ")}))
     summaries = run_jobs(_job, calls, jobs)
-    results: dict[str, dict[str, list]] = {a: {s: [] for s in shapes} for a in AGENTS if a in agents}
+    done = {a for a, _ in items}
+    results: dict[str, dict[str, list]] = {a: {s: [] for s in shapes} for a in AGENTS if a in done}
     for (agent, _), per_shape in zip(items, summaries):
         for shape in shapes:
             results[agent][shape].append(per_shape[shape])
     if expert:
         results["expert"] = {s: [v] for s, v in summaries[-1].items()}
     meta = {"budget": budget, "seeds": seeds, "jobs": jobs, "episodes": episodes, "setting": setting, "agents": list(results),
+            "missing_runs": [f"{a}-s{s}" for a, s in missing],
             "shapes": list(shapes), "wall_s": time.perf_counter() - t0,
             "machine": f"{platform.machine()}, {__import__('os').cpu_count()} CPU cores, "
                        f"jax backend {__import__('jax').default_backend()}"}
-    runs = {a: [out / "runs" / f"{a}-s{seed}" for seed in range(seeds)] for a in results if a in AGENTS}
+    runs = {a: [run_dir_of(out, a, s) for a2, s in items if a2 == a] for a in results if a in AGENTS}
     path = write_report(out, results, meta, runs)
     (out / "reproduce.json").write_text(json.dumps(meta, indent=2) + "\n")
     return path
