@@ -13,6 +13,12 @@ the task's start/goal poses (EE_home + U[-0.1, 0.1]^2, any yaw), renders their m
 
 If the probe's error is near the success radius, the policy cannot tell "there" from "1 cm away" and
 the critic cannot learn where the -1/0 boundary lies from z alone.
+
+Per shape, since learners are far less precise on cuboids than on cylinders: the xy probe on each
+shape alone, and for cuboids what pushing them needs beyond the centre: the yaw of the faces (mod
+90 degrees: a probe of (cos 4 yaw, sin 4 yaw)), the yaw of the long side of rectangular cuboids (mod
+180: cos/sin 2 yaw, for cuboids whose sides differ by at least 2 cm), and the footprint (length and
+width, the larger first).
 """
 
 from __future__ import annotations
@@ -68,15 +74,52 @@ def cubic_features(x: np.ndarray) -> np.ndarray:
     return np.stack(cols, 1)
 
 
-def probe(features: np.ndarray, xy: np.ndarray, train_frac: float = 0.8, ridge: float = 1e-3) -> dict:
-    """Held-out error (mm) of a ridge regression from cubic features of `features` to xy."""
+def fit(features: np.ndarray, target: np.ndarray, train_frac: float = 0.8, ridge: float = 1e-3):
+    """(held-out predictions, held-out targets) of a ridge regression from cubic features."""
     f = cubic_features(features.astype(np.float64))
     n = int(train_frac * len(f))
     a = f[:n]
-    w = np.linalg.solve(a.T @ a + ridge * np.eye(a.shape[1]), a.T @ xy[:n])
-    err = np.linalg.norm(f[n:] @ w - xy[n:], axis=1) * 1000.0
+    w = np.linalg.solve(a.T @ a + ridge * np.eye(a.shape[1]), a.T @ target[:n])
+    return f[n:] @ w, target[n:]
+
+
+def probe(features: np.ndarray, xy: np.ndarray, train_frac: float = 0.8, ridge: float = 1e-3) -> dict:
+    """Held-out error (mm) of a ridge regression from cubic features of `features` to xy."""
+    pred, want = fit(features, xy, train_frac, ridge)
+    err = np.linalg.norm(pred - want, axis=1) * 1000.0
     return {"median_mm": float(np.median(err)), "rmse_mm": float(np.sqrt(np.mean(err**2))),
             "p90_mm": float(np.percentile(err, 90)), "within_10mm": float(np.mean(err < 10.0)),
+            "test_objects": int(len(err))}
+
+
+def knn(features: np.ndarray, target: np.ndarray, k: int = 10, train_frac: float = 0.8):
+    """(held-out predictions, held-out targets) of a k-nearest-neighbour regression on standardised
+    features: a probe that assumes nothing about how the features encode the target."""
+    f = (features - features.mean(0)) / (features.std(0) + 1e-9)
+    n = int(train_frac * len(f))
+    d = ((f[n:, None, :] - f[None, :n]) ** 2).sum(-1)
+    return target[:n][np.argsort(d, 1)[:, :k]].mean(1), target[n:]
+
+
+def probe_angle(features: np.ndarray, yaw: np.ndarray, k: int) -> dict:
+    """Held-out error (degrees) of the yaw modulo 360/k, probed as (cos k yaw, sin k yaw) by the cubic
+    ridge probe and by k nearest neighbours. A yaw uniform over the period and a probe that knows
+    nothing give a median error of a quarter of the period."""
+    target = np.stack([np.cos(k * yaw), np.sin(k * yaw)], 1)
+    out = {"period_deg": 360.0 / k, "chance_median_deg": 90.0 / k}
+    for name, (pred, want) in (("ridge", fit(features, target)), ("knn", knn(features, target))):
+        got, true = np.arctan2(pred[:, 1], pred[:, 0]), np.arctan2(want[:, 1], want[:, 0])
+        err = np.degrees(np.abs(np.angle(np.exp(1j * (got - true))))) / k
+        out.update({f"{name}_median_deg": float(np.median(err)), f"{name}_p90_deg": float(np.percentile(err, 90))})
+    out["test_objects"] = int(len(err))
+    return out
+
+
+def probe_size(features: np.ndarray, sides: np.ndarray) -> dict:
+    """Held-out error (mm) of the footprint's (larger, smaller) side."""
+    pred, want = fit(features, sides)
+    err = np.abs(pred - want) * 1000.0
+    return {"median_mm_long": float(np.median(err[:, 0])), "median_mm_short": float(np.median(err[:, 1])),
             "test_objects": int(len(err))}
 
 
@@ -104,9 +147,18 @@ def measure(encoder_path: Path | None, n: int, seed: int) -> dict:
                        "dz_median": float(np.median(dz)),
                        "dz_over_random_pair": float(np.median(dz) / np.median(random_pair))})
     depth = scene.TABLE_TOP - scene.CAMERA_POS[2]
+    is_box = np.asarray(objs["is_box"])
+    yaw = np.asarray(objs["yaw"])
+    sides = 2.0 * np.sort(np.asarray(objs["box"])[:, :2], axis=1)[:, ::-1]  # full (long, short) footprint
+    rect = is_box & (sides[:, 0] - sides[:, 1] >= objects.RECT_MIN_DIFF)
+    per_shape = {name: {"probe_latent": probe(z0[sel], xy[sel]), "probe_mask_centroid": probe(centroid[sel], xy[sel])}
+                 for name, sel in (("cuboid", is_box), ("cylinder", ~is_box))}
+    cuboid = {"face_yaw_mod_90": probe_angle(z0[is_box], yaw[is_box], 4),
+              "long_side_yaw_mod_180": probe_angle(z0[rect], yaw[rect], 2),
+              "footprint": probe_size(z0[is_box], sides[is_box])}
     return {"objects": n, "seed": seed, "pixel_mm_at_table": float(1000 * depth / masks.FOCAL),
-            "probe_latent": probe(z0, xy), "probe_mask_centroid": probe(centroid, xy),
-            "random_pair_dz_median": float(np.median(random_pair)), "shifts": shifts}
+            "probe_latent": probe(z0, xy), "probe_mask_centroid": probe(centroid, xy), "per_shape": per_shape,
+            "cuboid_pose": cuboid, "random_pair_dz_median": float(np.median(random_pair)), "shifts": shifts}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -127,10 +179,23 @@ def main(argv: list[str] | None = None) -> int:
     t = Table(title="object xy from the observation (held-out error, mm)")
     for c in ("input", "median", "RMSE", "90th pct", "within 10 mm"):
         t.add_column(c, justify="right")
-    for name, key in (("latent z (6)", "probe_latent"), ("mask centroid (2)", "probe_mask_centroid")):
-        p = res[key]
+    rows = [("latent z (6)", res["probe_latent"]), ("mask centroid (2)", res["probe_mask_centroid"])]
+    for shape, d in res["per_shape"].items():
+        rows += [(f"{shape}s: latent z", d["probe_latent"]), (f"{shape}s: mask centroid", d["probe_mask_centroid"])]
+    for name, p in rows:
         t.add_row(name, f"{p['median_mm']:.1f}", f"{p['rmse_mm']:.1f}", f"{p['p90_mm']:.1f}",
                   f"{100 * p['within_10mm']:.0f} %")
+    console.print(t)
+    c = res["cuboid_pose"]
+    t = Table(title="what pushing a cuboid needs beyond its centre, from z (held-out error)")
+    for col in ("quantity", "median (ridge)", "90th pct (ridge)", "median (10-NN)", "chance median"):
+        t.add_column(col, justify="right")
+    for name, key in (("face yaw (mod 90 deg)", "face_yaw_mod_90"), ("long side yaw (mod 180 deg)", "long_side_yaw_mod_180")):
+        a = c[key]
+        t.add_row(name, f"{a['ridge_median_deg']:.1f} deg", f"{a['ridge_p90_deg']:.1f} deg",
+                  f"{a['knn_median_deg']:.1f} deg", f"{a['chance_median_deg']:.1f} deg")
+    t.add_row("footprint long / short side", f"{c['footprint']['median_mm_long']:.1f} / "
+              f"{c['footprint']['median_mm_short']:.1f} mm", "", "", "")
     console.print(t)
     t = Table(title=f"object moved, same size and yaw (median |z - z'| of random pairs: {res['random_pair_dz_median']:.3f})")
     for c in ("shift (mm)", "mask unchanged", "pixels changed (median)", "median |dz|", "|dz| / random pair"):
