@@ -338,11 +338,13 @@ def test_export_rejects_a_non_npz_name(exported, tmp_path):
         pfile.export_policy(exported["vpm"][0], tmp_path / "policy.bin")
 
 
-def test_loading_and_acting_never_import_jax(exported):
+def _acts_without_jax(path: Path) -> None:
+    """Load `path` with NumpyPolicy and act once in a fresh process that must import none of JAX, flax,
+    torch or MuJoCo."""
     code = (
         "import sys, numpy as np\n"
         "from export.numpy_policy import NumpyPolicy\n"
-        f"p = NumpyPolicy.from_file({str(exported['egru'][2])!r})\n"
+        f"p = NumpyPolicy.from_file({str(path)!r})\n"
         "m = np.zeros((64, 64), bool); m[20:30, 20:30] = True\n"
         "print(p.act(m, np.roll(m, 5, axis=0), np.array([0.4, 0.0])))\n"
         "bad = [k for k in ('jax', 'jaxlib', 'flax', 'torch', 'mujoco') if k in sys.modules]\n"
@@ -350,6 +352,10 @@ def test_loading_and_acting_never_import_jax(exported):
     )
     r = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr
+
+
+def test_loading_and_acting_never_import_jax(exported):
+    _acts_without_jax(exported["egru"][2])
 
 
 # --- torch -----------------------------------------------------------------------------------------
@@ -522,17 +528,7 @@ def test_package_encoder_reference_is_refused_when_the_encoder_differs(package_e
 
 
 def test_loading_a_package_referencing_file_never_imports_jax(package_exported):
-    code = (
-        "import sys, numpy as np\n"
-        "from export.numpy_policy import NumpyPolicy\n"
-        f"p = NumpyPolicy.from_file({str(package_exported[2])!r})\n"
-        "m = np.zeros((64, 64), bool); m[20:30, 20:30] = True\n"
-        "print(p.act(m, np.roll(m, 5, axis=0), np.array([0.4, 0.0])))\n"
-        "bad = [k for k in ('jax', 'jaxlib', 'flax', 'torch', 'mujoco') if k in sys.modules]\n"
-        "assert not bad, bad\n"
-    )
-    r = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60)
-    assert r.returncode == 0, r.stderr
+    _acts_without_jax(package_exported[2])  # the package's encoder is read with NumPy and msgpack
 
 
 def test_pretrained_names_resolve_for_eval_and_deploy(package_exported, tmp_path, monkeypatch):
