@@ -30,6 +30,18 @@ if os.environ.get("MJX_PUSH_TEST_OPTIMIZE") != "1":
 _LONGEST_FIRST = ("test_train_mjx.py", "test_eval.py", "test_batch.py", "test_learner_loop.py", "test_expert.py")
 
 
+@pytest.hookimpl(tryfirst=True)
+def pytest_cmdline_main(config):
+    """Two worker processes, whole files each (a file's fixtures are compiled once; CI has two cores),
+    when pytest-xdist is installed and `-n` was not given; without xdist the suite runs in one process
+    (addopts cannot say `-n 2`: pytest rejects the option when the plugin is missing)."""
+    if (config.pluginmanager.hasplugin("xdist") and not hasattr(config, "workerinput")
+            and config.option.numprocesses is None):
+        config.option.numprocesses = 2
+        if config.option.dist == "no":
+            config.option.dist = "loadfile"
+
+
 def pytest_collection_modifyitems(items):
     rank = {name: i for i, name in enumerate(_LONGEST_FIRST)}
     items.sort(key=lambda item: rank.get(item.path.name, len(_LONGEST_FIRST)))  # stable: the rest as collected

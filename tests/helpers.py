@@ -107,3 +107,21 @@ def latest_state(run_dir, cfg, adapter):
 
     trainer = make_train(cfg.train, adapter)
     return run_mod.Checkpoints(Path(run_dir) / "checkpoints").restore(trainer.init(jax.random.PRNGKey(0)), cfg)[0]
+
+
+def renderer_or_skip() -> None:
+    """Skip a test that needs MuJoCo's offscreen renderer where there is none, but fail instead when
+    MJX_PUSH_REQUIRE_RENDERER=1 (.ci/run sets it: CI machines have EGL, so a skip there would hide a
+    broken renderer). renderer_available() tries once per process: MuJoCo aborts on a second failure."""
+    import os
+
+    import pytest
+
+    from export.cpu_env import renderer_available
+
+    if renderer_available():
+        return
+    message = "MuJoCo offscreen renderer unavailable (no EGL / OSMesa / display); set MUJOCO_GL=egl"
+    if os.environ.get("MJX_PUSH_REQUIRE_RENDERER") == "1":
+        pytest.fail(message + " (MJX_PUSH_REQUIRE_RENDERER=1: this machine must render)")
+    pytest.skip(message)

@@ -15,7 +15,7 @@ from export.cpu_env import CpuPushEnv, decode_substeps, renderer_available, sani
 from mjx_push import controller, masks, objects, scene
 from mjx_push import corrections as corr
 from mjx_push import env as mjx_env
-from tests.helpers import B, HOME_XY, a_s_for, make_params
+from tests.helpers import B, HOME_XY, a_s_for, make_params, renderer_or_skip
 
 N_MASK_POSES = 40  # per shape
 
@@ -24,10 +24,6 @@ def _np_params(p):
     return jax.tree.map(np.asarray, p)
 
 
-def _renderer_or_skip():
-    # renderer_available() tries once per process: MuJoCo aborts on a second failed attempt.
-    if not renderer_available():
-        pytest.skip("MuJoCo offscreen renderer unavailable (no EGL / OSMesa / display); set MUJOCO_GL=egl")
 
 
 @pytest.fixture(scope="module")
@@ -147,7 +143,7 @@ def test_numpy_mask_pixel_convention():
 @pytest.mark.parametrize("shape", scene.SHAPES)
 def test_rendered_masks_match_analytic(shape):
     """mask_source="render" (the environment's colour-filtered render) against the NumPy analytic masks."""
-    _renderer_or_skip()
+    renderer_or_skip()
     env = CpuPushEnv(geom_type=shape, mask_source="render")
     assert env.mask_source_used == "render"
     rng = np.random.default_rng(11 if shape == "box" else 12)

@@ -9,10 +9,10 @@ from scipy import ndimage
 
 from export import masks_np
 from export.camera import MaskPipeline, dilate, erode, resize_area, resize_nearest, rgb_to_hsv
-from export.cpu_env import CpuPushEnv, render_filter, renderer_available
+from export.cpu_env import CpuPushEnv, render_filter
 from export.deploy import Camera, Policy, Robot, SimCamera, SimRobot, run_episode
 from mjx_push import scene
-from tests.helpers import HOME_XY, a_s_for, make_params
+from tests.helpers import HOME_XY, a_s_for, make_params, renderer_or_skip
 
 BLUE = (0, 0, 255)
 N = scene.IMAGE_SIZE
@@ -267,8 +267,7 @@ class StandOffPolicy:
 
 @pytest.mark.renderer
 def test_run_episode_with_rendered_camera():
-    if not renderer_available():  # tried once per process: MuJoCo aborts on a second failed attempt
-        pytest.skip("MuJoCo offscreen renderer unavailable (no EGL / OSMesa / display); set MUJOCO_GL=egl")
+    renderer_or_skip()
     env = _sim_env("render", start=(0.08, 0.12, 0.4))
     obj0 = env.info()["object_xy"]
     camera = SimCamera(env, size=128)  # a 2x larger frame: the pipeline's area resize is in the loop

@@ -14,7 +14,8 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import export  # noqa: F401  (registers MjxPush-v0)
-from export.cpu_env import CpuPushEnv, renderer_available
+from export.cpu_env import CpuPushEnv
+from tests.helpers import renderer_or_skip
 from export.gym_env import MjxPushGymEnv, split_observation
 from mjx_push import scene
 from mjx_push.env import EnvConfig
@@ -94,8 +95,7 @@ def test_mask_observation_and_action_checks():
 def test_headless_make_renders_and_passes_the_checkers():
     """A fresh process on a machine without a display, MUJOCO_GL unset: `gymnasium.make("export:MjxPush-v0")`
     (the module prefix imports and registers the package) picks EGL and renders the camera's masks."""
-    if not renderer_available():
-        pytest.skip("MuJoCo's offscreen renderer (EGL) is not available on this machine")
+    renderer_or_skip()
     code = (
         "import sys, gymnasium, numpy as np\n"
         "from gymnasium.utils.env_checker import check_env\n"
