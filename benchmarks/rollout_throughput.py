@@ -26,6 +26,7 @@ from rich.table import Table
 
 from mjx_push import encoder as enc
 from train import presets
+from train.config import AGENT_KINDS
 from train.loop import make_train
 from train.push_task import make_push_adapter
 
@@ -62,7 +63,7 @@ def main(argv=None) -> None:
     p.add_argument("--num-envs", type=int, nargs="+", default=[10])
     p.add_argument("--chunks", type=int, nargs="+", default=[0, 50])
     p.add_argument("--repeats", type=int, default=2)
-    p.add_argument("--agent", default="vpm", choices=["vpm", "stacked", "ugru", "egru"])
+    p.add_argument("--agent", default="vpm", choices=AGENT_KINDS)
     p.add_argument("--out", type=Path, default=Path("outputs/bench_rollout.json"))
     a = p.parse_args(argv)
     rows = []

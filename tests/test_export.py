@@ -238,6 +238,10 @@ def test_substep_decoding_matches_the_environment():
 
 
 # --- the file format -------------------------------------------------------------------------------
+def test_the_numpy_side_knows_the_same_agent_kinds():
+    assert pfile.AGENT_KINDS == AGENT_KINDS  # export/policy_file.py cannot import train.config (JAX)
+
+
 def test_metadata_record(exported):
     pf = pfile.load_npz(exported["egru"][2])
     m = pf.metadata

@@ -6,13 +6,15 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated
 
 import mjx_push  # noqa: F401  (applies the CPU XLA flag before jax starts)
 import tyro
 
+from train.config import AgentKind
 from train.eval_options import EvalOptions
 from train.flags import flag_errors
+from train.presets import Preset
 
 
 @dataclasses.dataclass
@@ -121,9 +123,9 @@ class Train:
     env steps, sized for one GPU). Any option left unset keeps the preset's value. Ctrl-C (or
     SIGTERM) stops after the current batch with a checkpoint; --resume continues it."""
 
-    agent: Literal["vpm", "stacked", "ugru", "egru"] = "vpm"
+    agent: AgentKind = "vpm"
     """vpm (the default: the cheapest to train on a CPU), stacked, ugru, egru (the paper's proposal)"""
-    preset: Literal["cpu", "cpu-long", "smoke", "reference", "paper"] = "cpu"
+    preset: Preset = "cpu"
     seed: int = 0
     run_dir: Annotated[Path | None, tyro.conf.arg(
         metavar="DIR", help_behavior_hint="(default: runs/<agent>-<preset>-s<seed>)")] = None
@@ -281,7 +283,7 @@ class Eval(EvalOptions):
     success_tau: Annotated[float | None, tyro.conf.arg(metavar="M", help_behavior_hint=(
         "(default: the radius the policy trained for)"))] = None
     """success radius in metres to score at (the correction counters use it too)"""
-    preset: Annotated[Literal["cpu", "cpu-long", "smoke", "reference", "paper"] | None, tyro.conf.arg(
+    preset: Annotated[Preset | None, tyro.conf.arg(
         metavar="{cpu,cpu-long,smoke,reference,paper}", help_behavior_hint="(default: cpu)")] = None
     """POLICY expert only: the preset whose action box the expert acts in (reference: the paper's)"""
     out: Annotated[Path | None, tyro.conf.arg(metavar="PATH", help_behavior_hint="(default: eval.json beside "
@@ -355,13 +357,13 @@ class Reproduce:
     square cuboid, rectangular cuboid) and write a Markdown report with figures (docs/task.md section 7).
     Rerunning reuses finished runs and evaluations and resumes interrupted runs."""
 
-    budget: Literal["smoke", "cpu", "cpu-long", "reference", "paper"] = "smoke"
+    budget: Preset = "smoke"
     seeds: int = 1
     out: Path | None = None
     """default: outputs/reproduce-<budget>"""
     episodes: int | None = None
     """evaluation episodes per shape (default: 8 for smoke, 100 otherwise)"""
-    agents: tuple[Literal["vpm", "stacked", "ugru", "egru"], ...] = ("ugru", "vpm", "stacked", "egru")
+    agents: tuple[AgentKind, ...] = ("ugru", "vpm", "stacked", "egru")
     """agents to train, started in this order (the report keeps the paper's order; by default eGRU starts
     last, so it reuses uGRU's compiled evaluation)"""
     jobs: int = 1

@@ -11,12 +11,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Literal
+from typing import Literal, get_args
 
 import jax.numpy as jnp
 
+# The agent kinds, defined here once (the command line, the presets and reproduce take them from here;
+# export/policy_file.py keeps a NumPy-side copy that a test holds equal).
 AgentKind = Literal["vpm", "stacked", "ugru", "egru"]
-AGENT_KINDS: tuple[str, ...] = ("vpm", "stacked", "ugru", "egru")
+AGENT_KINDS: tuple[str, ...] = get_args(AgentKind)
 CriticObs = Literal["actor", "privileged"]
 CRITIC_OBS: tuple[str, ...] = ("actor", "privileged")
 # What the actor minimises: "sac" (SAC's objective, plus the cloning term when bc_weight > 0) or "bc"

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
-from typing import Literal
+from typing import Literal, get_args
 
 from mjx_push import objects
 from mjx_push.controller import ControllerConfig
@@ -35,8 +35,8 @@ from mjx_push.expert import ExpertConfig
 from train import configio
 from train.config import AGENT_KINDS, AgentConfig, DemoConfig, LoopConfig, ReplayConfig, SACConfig, TrainConfig
 
-Preset = Literal["smoke", "cpu", "cpu-long", "reference", "paper"]
-PRESETS: tuple[str, ...] = ("smoke", "cpu", "cpu-long", "reference", "paper")
+Preset = Literal["smoke", "cpu", "cpu-long", "reference", "paper"]  # defined here once
+PRESETS: tuple[str, ...] = get_args(Preset)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -30,11 +30,12 @@ from typing import Callable
 import numpy as np
 
 from train import atomic, presets
+from train.config import AGENT_KINDS
 from train import run as run_mod
 from train.evaluate import DISTANCE_METRICS, METRICS, EvalSpec, ExpertPolicy, evaluate, evaluator_for, summarize
 from train.report import read_training, write_report
 
-AGENTS = ("vpm", "stacked", "ugru", "egru")
+AGENTS = AGENT_KINDS
 # The order agents start in by default: uGRU and eGRU evaluate with the same compiled programs (one
 # network; evaluation draws its own objects), so with two jobs eGRU starts once uGRU is done and loads
 # them from the compilation cache instead of compiling them beside it.
