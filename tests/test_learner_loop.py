@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from train.config import AgentConfig, LoopConfig, ReplayConfig, SACConfig, TrainConfig
-from train.loop import EnvAdapter, Runner, make_train, train as run_train
+from train.adapter import EnvAdapter
+from train.loop import Runner, make_train, train as run_train
 from tests.toy import make_toy
 
 TAU = 0.025  # toy success radius (the real task's is 0.01)

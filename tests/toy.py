@@ -14,7 +14,7 @@ import flax.struct
 import jax
 import jax.numpy as jnp
 
-from train.loop import EnvAdapter, SubstepScheduler, select_envs
+from train.adapter import EnvAdapter, SubstepScheduler, select_envs
 
 
 @flax.struct.dataclass

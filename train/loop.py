@@ -3,11 +3,9 @@
 ``make_train(config, adapter)`` returns pure, jittable pieces:
 
 * ``init(key) -> TrainState``
-* ``rollout(actor_params, key, random_actions, deterministic) -> (episodes, stats)``: one whole
-  episode in each of ``num_envs`` environments (the policy acts step by step with its carry; uniform
-  random actions during warm-up), in lockstep (``lax.scan`` over ``adapter.step``) or, when the
-  adapter has a ``SubstepScheduler``, each environment at its own pace. Evaluation reuses it chunk by
-  chunk.
+* ``rollout(actor_params, key, random_actions, deterministic, expert_envs, episodes) -> (episodes,
+  stats)``: one whole episode in each of ``num_envs`` environments (``train.rollout.make_collect``).
+  Evaluation reuses it chunk by chunk.
 * ``learn(state, episodes, key)``: add the episodes to replay, then ``lax.scan`` over
   ``num_envs * episode_len * utd`` SAC updates (skipped until warm-up is over and replay holds at
   least ``batch_size`` valid transitions); ``split_keys`` derives the two keys from the state's.
@@ -16,29 +14,11 @@
 
 ``Runner`` jits ``rollout`` once and ``learn`` once and drives them from Python, one call each per
 episode batch, so logging, progress bars and checkpoints sit between iterations; its ``evaluate`` runs
-``eval_episodes`` deterministic episodes through the same rollout; ``train`` is its plain loop. Everything a checkpoint must hold to resume lives in the one ``TrainState`` pytree
-(environments are reset at every batch, so no environment state outlives an iteration).
+``eval_episodes`` deterministic episodes through the same rollout; ``train`` is its plain loop.
+Everything a checkpoint must hold to resume lives in the one ``TrainState`` pytree (environments are
+reset at every batch, so no environment state outlives an iteration).
 
-The environment hides behind ``EnvAdapter`` (pure functions), so the same code runs the toy task in
-the tests and the MJX pushing environment:
-
-* ``reset(key, num_envs) -> (env_state, step_obs, episode_info)``, ``step_obs`` = {``ee_xy [N, 2]``,
-  ``z_obj [N, 6]``, ``obj_xy [N, 2]``} (+ ``priv [N, priv_dim]``), ``episode_info`` = {``z_goal [N, 6]``,
-  ``goal_xy [N, 2]``};
-* ``step(env_state, action [N, 3] in [-1, 1]) -> (env_state, step_obs, invalid [N] bool)``. An
-  episode with any invalid step is stored with ``valid=False`` and never sampled;
-* optionally ``success_tau``, the task's success radius, checked against ``replay.success_tau``;
-* optionally ``scheduler`` (``SubstepScheduler``), the step in phases for asynchronous rollouts;
-* optionally ``priv_dim`` > 0: ``step_obs["priv"]`` is the ground-truth state a privileged critic
-  reads (its first two numbers are the object's xy);
-* optionally ``expert(step_obs, episode_info) -> action [N, 3]``: a scripted policy on the ground
-  truth, for demonstrations (``DemoConfig``) and as a baseline;
-* optionally ``groups(num_envs) -> sizes``: the contiguous groups a batch is laid out in (the pushing
-  scene's shape groups), over which the expert's environments are spread in proportion;
-* optionally ``eval_episodes(setting, seed, chunk, num_envs) -> episodes``: the protocol's evaluation
-  episodes as a pytree (``use``, ``index`` [N], and whatever the adapter's ``reset(key, num_envs,
-  episodes)`` needs to start them where ``use`` is True), so in-run evaluations score every agent on
-  the same objects, poses and goals.
+The environment hides behind ``EnvAdapter`` (train/adapter.py); the rollout is train/rollout.py.
 """
 
 from __future__ import annotations
@@ -53,59 +33,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from train import normalizer, replay
+from train.adapter import EnvAdapter
 from train.config import TrainConfig
 from train.networks import Networks, make_networks
 from train.normalizer import RunningStats
 from train.replay import ReplayBuffer
+from train.rollout import make_collect, summarize
 from train.sac import SACState, init_state, make_update
 
 Params = Any
-
-
-def select_envs(mask: jax.Array, new, old):
-    """Per environment (leading axis), ``new`` where ``mask`` [N] is True and ``old`` elsewhere."""
-    return jax.tree.map(lambda n, o: jnp.where(mask.reshape(mask.shape + (1,) * (n.ndim - 1)), n, o), new, old)
-
-
-@dataclasses.dataclass(frozen=True)
-class SubstepScheduler:
-    """The step of an environment whose steps last a variable number of substeps, in phases, so the
-    rollout can advance every environment ``chunk`` substeps at a time and give each its next action
-    as soon as its own step is done (instead of every step waiting for the slowest environment):
-
-    * ``begin(env_state, action [N, 3], mask [N]) -> env_state``: start a step where ``mask``;
-    * ``advance(env_state, chunk) -> env_state``: up to ``chunk`` substeps of every current step;
-    * ``ready(env_state) -> [N] bool``: the current step's substeps are spent;
-    * ``finish(env_state, mask) -> (env_state, step_obs, invalid)``: end the step where ``mask``.
-    """
-
-    begin: Callable[[Any, jax.Array, jax.Array], Any]
-    advance: Callable[[Any, int], Any]
-    ready: Callable[[Any], jax.Array]
-    finish: Callable[[Any, jax.Array], tuple[Any, dict, jax.Array]]
-    chunk: int
-
-    def __post_init__(self):
-        if not (isinstance(self.chunk, int) and self.chunk >= 1):
-            raise ValueError(f"substep chunk must be a positive integer, got {self.chunk!r}")
-
-
-@dataclasses.dataclass(frozen=True)
-class EnvAdapter:
-    reset: Callable[[jax.Array, int], tuple[Any, dict, dict]]
-    step: Callable[[Any, jax.Array], tuple[Any, dict, jax.Array]]
-    # The task's success radius, if the environment defines one: make_train checks that the learner's
-    # reward (ReplayConfig.success_tau) uses the same, so relabelled rewards match the task's.
-    success_tau: float | None = None
-    # When set, rollouts step the environments asynchronously through it; the episodes are the same
-    # as with ``step`` (every random draw is keyed by environment and step), only faster.
-    scheduler: SubstepScheduler | None = None
-    priv_dim: int = 0
-    expert: Callable[[dict, dict], jax.Array] | None = None
-    # The devices a batch of ``num_envs`` environments is split over (a jax Mesh), or None for one.
-    mesh: Callable[[int], Any] | None = None
-    groups: Callable[[int], tuple[int, ...]] | None = None
-    eval_episodes: Callable[[str, int, int, int], dict] | None = None
 
 
 def spread_envs(k: int, groups: tuple[int, ...]) -> np.ndarray:
@@ -153,47 +89,6 @@ class Trainer:
     num_eval_chunks: int
     rollout_mesh: Any = None  # the devices the training rollout's environments are split over
     adapter: EnvAdapter | None = None  # the environment (its expert groups and evaluation episodes)
-
-
-def episode_stats(episodes: dict, success_tau: float) -> dict:
-    """Per-episode sum of sparse rewards, final success, validity and the object's distance to its goal
-    at the start and the end (``summarize`` gives the means); invalid episodes count as failures with
-    the worst reward -T and no progress (their ground truth may be garbage)."""
-    T = episodes["action"].shape[1]
-    rewards = replay.sparse_reward(episodes["obj_xy"][:, 1:], episodes["goal_xy"][:, None], success_tau)
-    start_dist = jnp.linalg.norm(episodes["obj_xy"][:, 0] - episodes["goal_xy"], axis=-1)
-    final_dist = jnp.linalg.norm(episodes["obj_xy"][:, -1] - episodes["goal_xy"], axis=-1)
-    valid = episodes["valid"]
-    ep_reward = jnp.where(valid, jnp.sum(rewards, axis=1), -float(T))
-    success = valid & (final_dist < success_tau)
-    return {
-        "episode_success": success,
-        "episode_reward": ep_reward,
-        "episode_valid": valid,
-        "episode_start_distance": start_dist,
-        "episode_final_distance": jnp.where(valid, final_dist, start_dist),
-    }
-
-
-# Radii (m) at which training and evaluation also report success, whatever the task's radius.
-REPORT_RADII = (0.01, 0.02, 0.05)
-
-
-def summarize(stats: dict, n: int | None = None) -> dict:
-    """Means over the first ``n`` episodes of per-episode stats (all if None)."""
-    s = stats["episode_success"][:n].astype(jnp.float32)
-    valid = stats["episode_valid"][:n]
-    final = stats["episode_final_distance"][:n]
-    at = {f"success_{round(r * 100)}cm": jnp.mean((valid & (final < r)).astype(jnp.float32)) for r in REPORT_RADII}
-    return {
-        "success_rate": jnp.mean(s),
-        **at,
-        "mean_reward": jnp.mean(stats["episode_reward"][:n]),
-        "invalid_rate": 1.0 - jnp.mean(stats["episode_valid"][:n].astype(jnp.float32)),
-        # Progress the sparse reward cannot show: while nothing reaches 1 cm every reward is -T.
-        "start_distance": jnp.mean(stats["episode_start_distance"][:n]),
-        "final_distance": jnp.mean(stats["episode_final_distance"][:n]),
-    }
 
 
 def improves(reward, success, best_reward, best_success):
@@ -245,118 +140,7 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
             norm_stats=normalizer.init_stats(agent.critic_obs, adapter.priv_dim) if agent.obs_norm else {},
         )
 
-    def act(actor_params, carry, obs, info, keys, random_actions, deterministic, expert_envs):
-        """Action records [N, A] (or [N, 2A] with the expert's noise-free action appended, when the
-        learner stores expert labels) of every environment from its own key ([N, 2]): uniform actions
-        during a random warm-up, the expert's (plus DemoConfig.noise) where ``expert_envs`` [N], else
-        the policy's. The carry advances in every case, so it stays in step with the observations."""
-        k_act, k_rand = jnp.swapaxes(jax.vmap(jax.random.split)(keys), 0, 1)
-        policy_action, carry = nets.act(
-            actor_params, carry, {"ee_xy": obs["ee_xy"], "z_obj": obs["z_obj"], "z_goal": info["z_goal"]}, k_act,
-            deterministic,
-        )
-        uniform = jax.vmap(lambda k: jax.random.uniform(k, policy_action.shape[1:], minval=-1.0, maxval=1.0))(k_rand)
-        action = jnp.where(random_actions, uniform, policy_action)
-        if adapter.expert is not None:
-            expert = adapter.expert(obs, info)
-            noise = demo_cfg.noise * jax.vmap(lambda k: jax.random.normal(k, policy_action.shape[1:]))(k_rand)
-            action = jnp.where(expert_envs[:, None], jnp.clip(expert + noise, -1.0, 1.0), action)
-            if store_labels:
-                action = jnp.concatenate([action, expert], axis=1)
-        return action, carry
-
-    def step_keys(step_key: jax.Array, num_envs: int) -> jax.Array:
-        """[N, 2]: environment i's key for the step whose key is ``step_key``."""
-        return jax.vmap(lambda i: jax.random.fold_in(step_key, i))(jnp.arange(num_envs))
-
-    def lockstep(actor_params, env_state, obs0, info, ks, num_envs, random_actions, deterministic, expert_envs):
-        def body(c, k):
-            env_state, obs, carry, bad = c
-            action, carry = act(actor_params, carry, obs, info, step_keys(k, num_envs), random_actions,
-                                deterministic, expert_envs)
-            env_state, obs, invalid = adapter.step(env_state, action[:, :action_dim])
-            return (env_state, obs, carry, bad | invalid), (obs, action)
-
-        init_c = (env_state, obs0, nets.init_carry(num_envs), jnp.zeros((num_envs,), bool))
-        (_, _, _, bad), (obs_seq, actions) = jax.lax.scan(body, init_c, ks)
-        return jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), obs_seq), jnp.swapaxes(actions, 0, 1), bad
-
-    def scheduled(actor_params, env_state, obs0, info, ks, num_envs, random_actions, deterministic, expert_envs):
-        """Every environment runs its own T steps: each tick advances all by ``chunk`` substeps, then
-        those whose step is spent finish it, record it and begin their next one."""
-        sch = adapter.scheduler
-        idx = jnp.arange(num_envs)
-        keys_at = lambda t: jax.vmap(jax.random.fold_in)(ks[jnp.minimum(t, T - 1)], idx)  # noqa: E731
-        t0 = jnp.zeros((num_envs,), jnp.int32)
-        action, carry = act(actor_params, nets.init_carry(num_envs), obs0, info, keys_at(t0),
-                            random_actions, deterministic, expert_envs)
-        env_state = sch.begin(env_state, action[:, :action_dim], jnp.ones((num_envs,), bool))
-        obs_buf = jax.tree.map(lambda x: jnp.zeros((num_envs, T) + x.shape[1:], x.dtype), obs0)
-        act_buf = jnp.zeros((num_envs, T) + action.shape[1:], action.dtype).at[:, 0].set(action)
-
-        def put(buf, slot, rows, mask):  # buf[i, slot[i]] = rows[i] where mask[i]
-            return buf.at[idx, slot].set(select_envs(mask, rows, buf[idx, slot]))
-
-        def body(c):
-            env_state = sch.advance(c[0], sch.chunk)
-            done = sch.ready(env_state) & (c[1] < T)
-            # Finishing, encoding and acting cost a sizeable fraction of a chunk of physics: skip them
-            # on the ticks where no environment's step ended.
-            return jax.lax.cond(jnp.any(done), turn, lambda c, d: c, (env_state,) + c[1:], done)
-
-        def turn(c, done):
-            env_state, t, carry, obs_buf, act_buf, bad = c
-            env_state, obs, invalid = sch.finish(env_state, done)
-            slot = jnp.minimum(t, T - 1)
-            obs_buf = jax.tree.map(lambda b, o: put(b, slot, o, done), obs_buf, obs)
-            bad = bad | (done & invalid)
-            t = t + done.astype(jnp.int32)
-            more = done & (t < T)
-            action, new_carry = act(actor_params, carry, obs, info, keys_at(t), random_actions,
-                                    deterministic, expert_envs)
-            carry = select_envs(more, new_carry, carry)
-            env_state = sch.begin(env_state, action[:, :action_dim], more)
-            act_buf = put(act_buf, jnp.minimum(t, T - 1), action, more)
-            return env_state, t, carry, obs_buf, act_buf, bad
-
-        init_c = (env_state, t0, carry, obs_buf, act_buf, jnp.zeros((num_envs,), bool))
-        _, _, _, obs_buf, act_buf, bad = jax.lax.while_loop(lambda c: jnp.any(c[1] < T), body, init_c)
-        return obs_buf, act_buf, bad
-
-    def collect(actor_params, key, num_envs: int, random_actions, deterministic, expert_envs, episodes=None):
-        """One whole episode in ``num_envs`` envs -> (episode records [num_envs, ...], stats). Step t
-        of environment i draws its randomness from fold_in(key_t, i), so an episode does not depend on
-        how the environments were scheduled. ``episodes`` (``adapter.eval_episodes``) starts the
-        protocol's episodes instead of freshly drawn ones where its ``use`` flag is True."""
-        k_reset, k_roll = jax.random.split(key)
-        if episodes is None:
-            env_state, obs0, info = adapter.reset(k_reset, num_envs)
-        else:
-            env_state, obs0, info = adapter.reset(k_reset, num_envs, episodes)
-        run = scheduled if adapter.scheduler is not None else lockstep
-        expert_envs = jnp.broadcast_to(expert_envs, (num_envs,))
-        obs_seq, records, bad = run(actor_params, env_state, obs0, info, jax.random.split(k_roll, T), num_envs,
-                                    random_actions, deterministic, expert_envs)
-        actions = records[..., :action_dim]
-
-        def with_reset(name):  # [N, T+1, .]: the reset observation first, then the T step observations
-            return jnp.concatenate([obs0[name][:, None], obs_seq[name]], axis=1)
-
-        episodes = {
-            "z_obj": with_reset("z_obj"),
-            "ee_xy": with_reset("ee_xy"),
-            "obj_xy": with_reset("obj_xy"),
-            "z_goal": info["z_goal"],
-            "goal_xy": info["goal_xy"],
-            "action": actions,
-            "valid": ~bad,
-            "demo": expert_envs,
-        }
-        if stored_priv_dim:
-            episodes["priv"] = with_reset("priv")
-        if store_labels:
-            episodes["expert_action"] = records[..., action_dim:]
-        return episodes, episode_stats(episodes, config.replay.success_tau)
+    collect = make_collect(config, adapter, nets, action_dim)
 
     bc = sac_cfg.bc_weight > 0
 

@@ -18,7 +18,7 @@ from mjx_push import encoder as enc
 from mjx_push import expert as expert_mod
 from mjx_push.batch import BatchState, PushBatch
 from mjx_push.env import EnvConfig
-from train.loop import EnvAdapter, SubstepScheduler
+from train.adapter import EnvAdapter, SubstepScheduler
 
 # The privileged state, per environment step: name -> width, in order. The object's xy comes first
 # (the learner's convention: priv[:2] is the achieved goal).

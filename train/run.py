@@ -38,7 +38,8 @@ from mjx_push import encoder as enc
 from train import atomic, configio
 from train.interrupt import StopOnSignal
 from train.run_lock import RunLock
-from train.loop import EnvAdapter, Runner, TrainState, make_train
+from train.adapter import EnvAdapter
+from train.loop import Runner, TrainState, make_train
 from train.loop import train as train_loop
 from train.presets import RunConfig
 
