@@ -95,19 +95,23 @@ def probe(features: np.ndarray, xy: np.ndarray, train_frac: float = 0.8, ridge: 
 def knn(features: np.ndarray, target: np.ndarray, k: int = 10, train_frac: float = 0.8):
     """(held-out predictions, held-out targets) of a k-nearest-neighbour regression on standardised
     features: a probe that assumes nothing about how the features encode the target."""
-    f = (features - features.mean(0)) / (features.std(0) + 1e-9)
+    f = ((features - features.mean(0)) / (features.std(0) + 1e-9)).astype(np.float32)
     n = int(train_frac * len(f))
-    d = ((f[n:, None, :] - f[None, :n]) ** 2).sum(-1)
+    a, b = f[n:], f[:n]  # squared distances without an [n_test, n_train, dim] array (masks: 4,096 dims)
+    d = (a * a).sum(1)[:, None] + (b * b).sum(1)[None] - 2.0 * a @ b.T
     return target[:n][np.argsort(d, 1)[:, :k]].mean(1), target[n:]
 
 
-def probe_angle(features: np.ndarray, yaw: np.ndarray, k: int) -> dict:
+def probe_angle(features: np.ndarray, yaw: np.ndarray, k: int, pixels: np.ndarray | None = None) -> dict:
     """Held-out error (degrees) of the yaw modulo 360/k, probed as (cos k yaw, sin k yaw) by the cubic
     ridge probe and by k nearest neighbours. A yaw uniform over the period and a probe that knows
     nothing give a median error of a quarter of the period."""
     target = np.stack([np.cos(k * yaw), np.sin(k * yaw)], 1)
     out = {"period_deg": 360.0 / k, "chance_median_deg": 90.0 / k}
-    for name, (pred, want) in (("ridge", fit(features, target)), ("knn", knn(features, target))):
+    probes = [("ridge", fit(features, target)), ("knn", knn(features, target))]
+    if pixels is not None:  # the mask itself, by nearest neighbours: what any encoder could pass on
+        probes.append(("mask_knn", knn(pixels, target)))
+    for name, (pred, want) in probes:
         got, true = np.arctan2(pred[:, 1], pred[:, 0]), np.arctan2(want[:, 1], want[:, 0])
         err = np.degrees(np.abs(np.angle(np.exp(1j * (got - true))))) / k
         out.update({f"{name}_median_deg": float(np.median(err)), f"{name}_p90_deg": float(np.percentile(err, 90))})
@@ -153,8 +157,9 @@ def measure(encoder_path: Path | None, n: int, seed: int) -> dict:
     rect = is_box & (sides[:, 0] - sides[:, 1] >= objects.RECT_MIN_DIFF)
     per_shape = {name: {"probe_latent": probe(z0[sel], xy[sel]), "probe_mask_centroid": probe(centroid[sel], xy[sel])}
                  for name, sel in (("cuboid", is_box), ("cylinder", ~is_box))}
-    cuboid = {"face_yaw_mod_90": probe_angle(z0[is_box], yaw[is_box], 4),
-              "long_side_yaw_mod_180": probe_angle(z0[rect], yaw[rect], 2),
+    pixels = m0n.reshape(n, -1).astype(np.float32)
+    cuboid = {"face_yaw_mod_90": probe_angle(z0[is_box], yaw[is_box], 4, pixels[is_box]),
+              "long_side_yaw_mod_180": probe_angle(z0[rect], yaw[rect], 2, pixels[rect]),
               "footprint": probe_size(z0[is_box], sides[is_box])}
     return {"objects": n, "seed": seed, "pixel_mm_at_table": float(1000 * depth / masks.FOCAL),
             "probe_latent": probe(z0, xy), "probe_mask_centroid": probe(centroid, xy), "per_shape": per_shape,
@@ -188,14 +193,16 @@ def main(argv: list[str] | None = None) -> int:
     console.print(t)
     c = res["cuboid_pose"]
     t = Table(title="what pushing a cuboid needs beyond its centre, from z (held-out error)")
-    for col in ("quantity", "median (ridge)", "90th pct (ridge)", "median (10-NN)", "chance median"):
+    for col in ("quantity", "median (ridge)", "90th pct (ridge)", "median (10-NN)", "mask pixels (10-NN)",
+                "chance median"):
         t.add_column(col, justify="right")
     for name, key in (("face yaw (mod 90 deg)", "face_yaw_mod_90"), ("long side yaw (mod 180 deg)", "long_side_yaw_mod_180")):
         a = c[key]
         t.add_row(name, f"{a['ridge_median_deg']:.1f} deg", f"{a['ridge_p90_deg']:.1f} deg",
-                  f"{a['knn_median_deg']:.1f} deg", f"{a['chance_median_deg']:.1f} deg")
+                  f"{a['knn_median_deg']:.1f} deg", f"{a['mask_knn_median_deg']:.1f} deg",
+                  f"{a['chance_median_deg']:.1f} deg")
     t.add_row("footprint long / short side", f"{c['footprint']['median_mm_long']:.1f} / "
-              f"{c['footprint']['median_mm_short']:.1f} mm", "", "", "")
+              f"{c['footprint']['median_mm_short']:.1f} mm", "", "", "", "")
     console.print(t)
     t = Table(title=f"object moved, same size and yaw (median |z - z'| of random pairs: {res['random_pair_dz_median']:.3f})")
     for c in ("shift (mm)", "mask unchanged", "pixels changed (median)", "median |dz|", "|dz| / random pair"):
