@@ -3,10 +3,10 @@ the encoder, with the presets of `mjx-push train --preset`.
 
 * ``smoke``: the whole pipeline (demonstrations, rollouts, updates, evaluation, checkpoints, best
   policy) on 2 CPU cores in a few minutes; it proves the plumbing, not the policy.
-* ``cpu``: the README's main job: an agent that visibly learns to push on 2 CPU cores in about 8
-  minutes (VPM: 75 % within 5 cm, 35 % within 1 cm; 1 cm needs longer).
-* ``cpu-long``: about two hours on 2 CPU cores shared with other runs, for 1 cm (eGRU: 80 % within
-  1 cm at 64,000 env steps).
+* ``cpu``: the README's main job: an agent that visibly learns to push on 2 CPU cores in about 6
+  minutes (VPM: 72 % within 5 cm, 42 % within 1 cm on 100 standard episodes; 1 cm needs longer).
+* ``cpu-long``: 64,000 env steps, 25-30 minutes alone on 2 CPU cores, for 1 cm (eGRU: 64-80 % within
+  1 cm by seed).
 * ``reference``: the paper's reference code, one call of its training script: its action box and
   learner (no normalisation, symmetric critics, no demonstrations), 29,000 environment steps,
   10,000 random-action steps, one update per environment step, batch 256. That script resumed and
