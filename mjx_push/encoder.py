@@ -103,6 +103,12 @@ def init_vae(key: jax.Array):
 def random_masks(key: jax.Array, n: int, x_range=(-0.25, 0.30), y_range=(-0.30, 0.30)) -> jax.Array:
     """`n` masks [n, 64, 64] of objects with random shape (half boxes, half cylinders), size and height
     from Table I, yaw in [-pi, pi) and position EE_home + (x, y) from the given ranges (docs/task.md section 5)."""
+    return random_masks_with_pose(key, n, x_range, y_range)[0]
+
+
+def random_masks_with_pose(key: jax.Array, n: int, x_range=(-0.25, 0.30), y_range=(-0.30, 0.30)):
+    """`random_masks`' masks and what drew them: (masks [n, 64, 64], is_box [n], yaw [n], box half
+    extents [n, 3]; the last meaningful where is_box)."""
     cfg = objects.ObjectConfig()
     home = jnp.asarray(scene.home_flange_pos()[:2], jnp.float32)
     k_shape, k_pose, k_box, k_cyl = jax.random.split(key, 4)
@@ -117,9 +123,11 @@ def random_masks(key: jax.Array, n: int, x_range=(-0.25, 0.30), y_range=(-0.30, 
         hh = size[2] if geom_type == "box" else size[1]
         return masks.object_mask(geom_type, size, xy, yaw, scene.TABLE_TOP + hh)
 
-    boxes = jax.vmap(lambda k, p, y: one("box", k, p, y))(jax.random.split(k_box, n), xy, pose[:, 2])
+    box_keys = jax.random.split(k_box, n)
+    boxes = jax.vmap(lambda k, p, y: one("box", k, p, y))(box_keys, xy, pose[:, 2])
     cyls = jax.vmap(lambda k, p, y: one("cylinder", k, p, y))(jax.random.split(k_cyl, n), xy, pose[:, 2])
-    return jnp.where(is_box[:, None, None], boxes, cyls)
+    box_size = jax.vmap(lambda k: objects.sample(k, cfg, "box", home).size)(box_keys)
+    return jnp.where(is_box[:, None, None], boxes, cyls), is_box, pose[:, 2], box_size
 
 
 def iou(pred: jax.Array, target: jax.Array) -> jax.Array:

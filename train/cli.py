@@ -65,6 +65,8 @@ class TrainEncoder:
     batch_size: int = 64
     lr: float = 1e-3
     kl_weight: float = 1.0
+    yaw_weight: float = 0.0
+    """weight of an auxiliary loss that makes the latent carry cuboid orientation (0: the paper's loss)"""
     eval_masks: int = 1000
     eval_every: int = 500
     seed: int = 0
@@ -82,7 +84,7 @@ class TrainEncoder:
         from train.encoder_training import EncoderTrainConfig, train_encoder
 
         cfg = EncoderTrainConfig(steps=self.steps, batch_size=self.batch_size, lr=self.lr,
-                                 kl_weight=self.kl_weight, eval_masks=self.eval_masks,
+                                 kl_weight=self.kl_weight, yaw_weight=self.yaw_weight, eval_masks=self.eval_masks,
                                  eval_every=self.eval_every, seed=self.seed)
         console = Console()
         console.print(f"[bold]mjx-push train-encoder[/]: {cfg.steps} steps of {cfg.batch_size} fresh masks")
@@ -94,7 +96,8 @@ class TrainEncoder:
         params, report = train_encoder(cfg, progress)
         record = {
             "command": (f"mjx-push train-encoder --steps {cfg.steps} --batch-size {cfg.batch_size} --lr {cfg.lr} "
-                        f"--kl-weight {cfg.kl_weight} --eval-masks {cfg.eval_masks} --seed {cfg.seed} "
+                        f"--kl-weight {cfg.kl_weight} --yaw-weight {cfg.yaw_weight} --eval-masks {cfg.eval_masks} "
+                        f"--seed {cfg.seed} "
                         f"--out {self.out}"),
             "seed": cfg.seed,
             "created": time.strftime("%Y-%m-%d %H:%M:%S"),
