@@ -366,3 +366,21 @@ def test_reproduce_plan_lists_one_command_per_job_then_the_report(tmp_path, caps
     assert "--job must be AGENT:SEED" in capsys.readouterr().err
     assert cli_main(["reproduce", "--job", "vpm:0", "--report-only"]) == 2
     assert "exclude each other" in capsys.readouterr().err
+
+
+def test_reproduce_restarts_a_run_killed_before_its_first_checkpoint(tmp_path, monkeypatch):
+    """A run stopped in its first batches (logs, no checkpoint) has nothing to resume: reproduce starts
+    it again instead of failing on a directory that "already holds a run"."""
+    from train import presets
+    from train import reproduce as rep
+    from train import run as run_mod
+
+    cfg = presets.make("vpm", "smoke")
+    run_dir = tmp_path / "runs" / "vpm-s0"
+    (run_dir / "checkpoints").mkdir(parents=True)
+    (run_dir / "metrics.csv").write_text("env_steps\n400\n")
+    calls = []
+    monkeypatch.setattr(run_mod, "run", lambda c, d, resume: calls.append((d, resume, sorted(d.glob("*")))))
+    lines: list[str] = []
+    rep.train_or_reuse(cfg, run_dir, lines.append)
+    assert calls == [(run_dir, False, [])] and "stopped before its first checkpoint" in lines[0]

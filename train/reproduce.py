@@ -23,6 +23,7 @@ import hashlib
 import json
 import multiprocessing
 import platform
+import shutil
 import time
 from pathlib import Path
 from typing import Callable
@@ -51,7 +52,12 @@ def train_or_reuse(cfg: presets.RunConfig, run_dir: Path, log: Callable[[str], N
             raise ValueError(f"{run_dir} holds a finished run of another configuration; use another --out")
         log(f"reusing finished run {run_dir}")
         return
-    resume = (run_dir / "checkpoints").is_dir() and any((run_dir / "checkpoints").iterdir())
+    resume = (run_dir / "checkpoints").is_dir() and any(p.name.isdigit() for p in (run_dir / "checkpoints").iterdir())
+    if not resume and run_dir.exists():
+        # Killed before its first checkpoint: nothing to resume, and its logs would make `run` refuse
+        # the directory as "already holding a run". Start it again from scratch.
+        log(f"{run_dir} was stopped before its first checkpoint: starting it again")
+        shutil.rmtree(run_dir)
     log(("resuming " if resume else "training ") + str(run_dir))
     run_mod.run(cfg, run_dir, resume=resume)
 
