@@ -38,11 +38,8 @@ from rich.table import Table
 
 from benchmarks import learning_ladder as ladder
 from train import atomic
-from train import run as run_mod
-from train.evaluate import EvalSpec, evaluate
 
 LEARNERS = ("bc", "sacbc", "anneal")
-RADII = (0.01, 0.02, 0.05)
 
 
 def learner_overrides(learner: str, anneal: tuple[int, int]) -> list[str]:
@@ -59,15 +56,7 @@ def score(run_dir: Path, which: str, setting: str, episodes: int) -> dict:
         cached = json.loads(cache.read_text())
         if cached.get("weights_mtime_ns") == stamp:
             return cached["score"]
-    res = evaluate(run_mod.load_policy(run_dir / which), EvalSpec(setting=setting, shape="all", episodes=episodes,
-                                                                   batch=min(50, episodes)))
-    per = res["per_episode"]
-    ok = ~per["invalid"].astype(bool)
-    out = {f"success_{round(r * 100)}cm": float(np.mean(ok & (per["final_distance"] < r))) for r in RADII}
-    out.update({k: float(np.mean(per[k])) for k in ("overshoot", "distance", "start_distance", "final_distance")})
-    for shape, pick in (("cuboid", 0), ("cylinder", 1)):  # the protocol's "all": even episodes are cuboids
-        idx = np.arange(len(ok)) % 2 == pick
-        out[f"success_1cm_{shape}"] = float(np.mean(ok[idx] & (per["final_distance"][idx] < 0.01)))
+    out = ladder.score(run_dir, which, episodes, setting)
     atomic.write_text(cache, json.dumps({"weights_mtime_ns": stamp, "score": out}) + "\n")
     return out
 

@@ -74,7 +74,11 @@ def score(run_dir: Path, which: str, episodes: int, setting: str = "standard") -
     out = {f"success_{round(r * 100)}cm": float(np.mean(ok & (per["final_distance"] < r))) for r in RADII}
     out.update(start_distance=float(np.mean(per["start_distance"])),
                final_distance=float(np.mean(per["final_distance"])),
+               overshoot=float(np.mean(per["overshoot"])), distance=float(np.mean(per["distance"])),
                invalid=int(np.sum(~ok)), trained_tau=env.success_tau)
+    for shape, pick in (("cuboid", 0), ("cylinder", 1)):  # the protocol's "all": even episodes are cuboids
+        idx = np.arange(len(ok)) % 2 == pick
+        out[f"success_1cm_{shape}"] = float(np.mean(ok[idx] & (per["final_distance"][idx] < 0.01)))
     return out
 
 

@@ -196,11 +196,8 @@ class Eval(train_cli.Eval):
         from export.policy_file import load_as_policy
 
         path = pretrained.resolve(path)
-        if path.suffix != ".npz":
+        if path.suffix != ".npz" or not path.is_file():  # the training side's policies and its errors
             return super().resolve(path)
-        if not path.is_file():
-            raise ValueError(f"POLICY {path}: no such file or directory (a run directory, a saved policy "
-                             "best_policy.msgpack / .json or their stem, or an exported .npz)")
         try:
             return load_as_policy(path)
         except ValueError as e:

@@ -113,15 +113,19 @@ def renderer_or_skip() -> None:
     """Skip a test that needs MuJoCo's offscreen renderer where there is none, but fail instead when
     MJX_PUSH_REQUIRE_RENDERER=1 (.ci/run sets it: CI machines have EGL, so a skip there would hide a
     broken renderer). renderer_available() tries once per process: MuJoCo aborts on a second failure."""
+    from export.cpu_env import renderer_available
+
+    if not renderer_available():
+        no_renderer("no EGL / OSMesa / display")
+
+
+def no_renderer(why: str) -> None:
+    """Skip (or, under MJX_PUSH_REQUIRE_RENDERER=1, fail) a test whose renderer could not start."""
     import os
 
     import pytest
 
-    from export.cpu_env import renderer_available
-
-    if renderer_available():
-        return
-    message = "MuJoCo offscreen renderer unavailable (no EGL / OSMesa / display); set MUJOCO_GL=egl"
+    message = f"MuJoCo offscreen renderer unavailable ({why}); set MUJOCO_GL=egl"
     if os.environ.get("MJX_PUSH_REQUIRE_RENDERER") == "1":
         pytest.fail(message + " (MJX_PUSH_REQUIRE_RENDERER=1: this machine must render)")
     pytest.skip(message)

@@ -1,6 +1,5 @@
 """Analytic masks against MuJoCo's own renderer (docs/task.md section 2): mean IoU >= 0.95 over random poses."""
 
-import os
 
 import jax
 import jax.numpy as jnp
@@ -9,6 +8,7 @@ import numpy as np
 import pytest
 
 from mjx_push import masks, scene
+from tests.helpers import no_renderer
 
 N_PER_SHAPE = 120  # 240 poses in all
 
@@ -17,10 +17,7 @@ def _renderer(m):
     try:
         return mujoco.Renderer(m, scene.IMAGE_SIZE, scene.IMAGE_SIZE)
     except Exception as e:  # no EGL / OSMesa on this machine
-        if os.environ.get("MJX_PUSH_REQUIRE_RENDERER") == "1":  # CI renders: fail rather than skip
-            pytest.fail(f"MuJoCo offscreen renderer unavailable ({type(e).__name__}: {e}) under "
-                        "MJX_PUSH_REQUIRE_RENDERER=1")
-        pytest.skip(f"MuJoCo offscreen renderer unavailable ({type(e).__name__}: {e}); set MUJOCO_GL=egl")
+        no_renderer(f"{type(e).__name__}: {e}")
 
 
 def colour_filter(rgb: np.ndarray) -> np.ndarray:

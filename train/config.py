@@ -25,10 +25,10 @@ CRITIC_OBS: tuple[str, ...] = ("actor", "privileged")
 # (the cloning term alone: DAgger with the scripted expert; the critics still learn, the actor never
 # reads them).
 ActorLoss = Literal["sac", "bc"]
-ACTOR_LOSSES: tuple[str, ...] = ("sac", "bc")
-# The episodes in-run evaluations score (train/episodes.py): the protocol's settings.
+ACTOR_LOSSES: tuple[str, ...] = get_args(ActorLoss)
+# The protocol's settings (train.evaluate) that in-run evaluations can score.
 EvalSetting = Literal["standard", "difficult"]
-EVAL_SETTINGS: tuple[str, ...] = ("standard", "difficult")
+EVAL_SETTINGS: tuple[str, ...] = get_args(EvalSetting)
 
 
 def _check(ok: bool, name: str, requirement: str, value) -> None:
