@@ -6,14 +6,29 @@ group over (the most devices, up to `jax.device_count()`, that divide every grou
 even) and `shard(fn, mesh)` runs a per-environment batched function on each device's slice with
 `shard_map`. Nothing is exchanged between devices inside a substep: each device steps its own
 environments and the results are the same as on one device.
+
+jaxlib 0.11.2's CPU compiler crashes (segmentation fault) on the `shard_map` of MJX's reset over two
+host devices; there `shard` constrains the inputs and outputs to the split instead and lets XLA's
+partitioner split the batched computation (same results; checked by tests/test_batch.py).
 """
 
 from __future__ import annotations
+
+import importlib.metadata
 
 import jax
 from jax.sharding import NamedSharding, PartitionSpec
 
 AXIS = "envs"
+
+
+def _shard_map_compiles() -> bool:
+    """False on the jaxlib line whose CPU compiler crashes on the environments' shard_map (0.11)."""
+    try:
+        major, minor = (int(x) for x in importlib.metadata.version("jaxlib").split(".")[:2])
+    except (importlib.metadata.PackageNotFoundError, ValueError):
+        return True
+    return (major, minor) < (0, 11) or jax.default_backend() != "cpu"
 
 
 def env_mesh(counts: tuple[int, ...], max_devices: int | None = None) -> jax.sharding.Mesh | None:
@@ -35,10 +50,12 @@ def shard(fn, mesh: jax.sharding.Mesh | None):
         return fn
     spec = PartitionSpec(AXIS)
     sharding = NamedSharding(mesh, spec)
+    constrain = lambda tree: jax.tree.map(lambda x: jax.lax.with_sharding_constraint(x, sharding), tree)  # noqa: E731
+    if not _shard_map_compiles():
+        return lambda *args: constrain(fn(*constrain(args)))
     inner = jax.shard_map(fn, mesh=mesh, in_specs=spec, out_specs=spec, check_vma=False)
 
     def run(*args):
-        args = jax.tree.map(lambda x: jax.lax.with_sharding_constraint(x, sharding), args)
-        return inner(*args)
+        return inner(*constrain(args))
 
     return run

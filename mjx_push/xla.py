@@ -2,7 +2,8 @@
 
 - `--xla_cpu_use_fusion_emitters=false`: with jaxlib 0.10.x the CPU fusion emitters make MJX
   kinematics exponentially slow in the depth of the kinematic tree (jax-ml/jax#33761,
-  google-deepmind/mujoco#2957): a 7-joint arm runs ~500x slower.
+  google-deepmind/mujoco#2957): a 7-joint arm runs ~500x slower. jaxlib 0.11 no longer knows the
+  flag (an unknown flag in XLA_FLAGS aborts the process), so it is added for jaxlib < 0.11 only.
 - `--xla_force_host_platform_device_count=N`: XLA runs one CPU device's program on one core, so a
   batch of MJX environments on one device uses one core however many the machine has. With N host
   devices `mjx_push.batch.PushBatch` splits its environments over them (`mjx_push.devices`) and the
@@ -14,6 +15,7 @@ Importing this module (every package entry point does, first) adds each flag unl
 set it either way in their own XLA_FLAGS.
 """
 
+import importlib.metadata
 import os
 
 FLAG = "--xla_cpu_use_fusion_emitters"
@@ -37,9 +39,18 @@ def cpu_device_count() -> int:
     return max(1, min(cores, MAX_DEVICES))
 
 
+def needs_fusion_flag() -> bool:
+    """Whether the installed jaxlib has (and needs) the fusion-emitter flag: the 0.10 line and older."""
+    try:
+        major, minor = (int(x) for x in importlib.metadata.version("jaxlib").split(".")[:2])
+    except (importlib.metadata.PackageNotFoundError, ValueError):
+        return True  # unknown build: keep the flag that the tested line needs
+    return (major, minor) < (0, 11)
+
+
 def apply_cpu_flags() -> None:
     flags = os.environ.get("XLA_FLAGS", "")
-    if FLAG not in flags:
+    if FLAG not in flags and needs_fusion_flag():
         flags += f" {FLAG}=false"
     if DEVICE_FLAG not in flags:
         flags += f" {DEVICE_FLAG}={cpu_device_count()}"

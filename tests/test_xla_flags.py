@@ -26,9 +26,17 @@ def test_flags_are_added_once_and_a_users_own_setting_wins(monkeypatch):
     xla.apply_cpu_flags()
     flags = os.environ["XLA_FLAGS"]
     assert f"{xla.DEVICE_FLAG}=5" in flags and flags.count(xla.DEVICE_FLAG) == 1
-    assert f"{xla.FLAG}=false" in flags
+    # The fusion-emitter flag where the installed jaxlib has it (0.10 line); jaxlib 0.11 aborts on it.
+    assert (f"{xla.FLAG}=false" in flags) == xla.needs_fusion_flag()
     xla.apply_cpu_flags()
     assert os.environ["XLA_FLAGS"] == flags
+
+
+def test_the_fusion_flag_follows_the_jaxlib_line(monkeypatch):
+    versions = {"0.10.2": True, "0.10.0": True, "0.9.1": True, "0.11.2": False, "0.12.0.1": False, "1.0.0": False}
+    for v, want in versions.items():
+        monkeypatch.setattr(xla.importlib.metadata, "version", lambda name, v=v: v)
+        assert xla.needs_fusion_flag() is want, v
 
 
 @pytest.fixture
