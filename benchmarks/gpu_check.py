@@ -2,28 +2,34 @@
 JSON. Run it through `benchmarks/gpu_check.sh` on a GPU machine; `--tiny` runs the same stages at toy
 sizes on a CPU (CI does, so the script cannot rot between device sessions).
 
-    python -m benchmarks.gpu_check [--tiny] [--sizes 1024 2048 4096 8192] [--preset paper]
+    python -m benchmarks.gpu_check [--tiny] [--sizes 2048 8192 4096 1024] [--preset paper]
                                    [--learn-seconds 150] [--budget-s 420] [--out outputs/gpu_check.json]
 
-Stages, in order, each skipped (and marked so) once the time budget is spent:
-1. `env`: per batch size, the preset's environment (`mjx_push.batch.PushBatch`) driven by the substep
-   scheduler of the training rollout with uniform random actions for `--env-steps` steps: compile
-   seconds, useful substeps/s, env steps/s.
+Stages, in order of what users need first, each skipped (and marked so) once the time budget is spent:
+1. `env`, first size (the paper preset's 2,048 environments): the preset's environment
+   (`mjx_push.batch.PushBatch`) driven by the substep scheduler of the training rollout with uniform
+   random actions for `--env-steps` steps: compile seconds, useful substeps/s, env steps/s.
 2. `train`: the preset's learner (VPM) through `train.loop.Runner`: the first batch's seconds
    (compilation included), then batches until `--learn-seconds` have passed: env steps/s and
    gradient updates/s, rollout and update seconds per batch.
 3. `learn`: the same run's actor evaluated (deterministic, the preset's evaluation episodes, the shared
    rollout): success within 1, 2 and 5 cm and the final object-goal distance, with the env steps it
    trained on.
-The JSON is rewritten after every stage, so a run stopped by a timeout keeps what it measured.
+4. `env`, the other sizes, in the order given.
+`machine` records the interpreter, the devices and the version and location of every package the check
+imports. The JSON is rewritten after every measurement (each size, the first batch, each stage), and an
+interrupt (SIGINT: `gpu_check.sh` sends one at its timeout) writes what was measured and why it stopped.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import importlib.metadata as md
+import importlib.util
 import os
 import platform
+import sys
 import time
 from pathlib import Path
 
@@ -38,32 +44,61 @@ from train.loop import Runner, make_train
 from train.push_task import make_push_adapter
 
 TINY = dict(sizes=[4, 8], preset="smoke", learn_seconds=1.0, env_steps=3, budget_s=1800.0)
-FULL = dict(sizes=[1024, 2048, 4096, 8192], preset="paper", learn_seconds=150.0, env_steps=10, budget_s=420.0)
+FULL = dict(sizes=[2048, 8192, 4096, 1024], preset="paper", learn_seconds=150.0, env_steps=10, budget_s=420.0)
+
+
+# Distributions whose versions decide what ran: the image's (JAX and its CUDA plugin, flax, ...) and the
+# ones carried as wheels (MuJoCo, MJX, brax, ...).
+PACKAGES = ("jax", "jaxlib", "jax-cuda13-plugin", "jax-cuda13-pjrt", "jax-cuda12-plugin", "jax-cuda12-pjrt",
+            "mujoco", "mujoco-mjx", "brax", "flax", "optax", "orbax-checkpoint", "numpy", "ml-dtypes", "scipy",
+            "gymnasium", "tyro", "rich", "tensorboardX", "mjx-push")
+MODULES = ("jax", "jaxlib", "mujoco", "brax", "flax", "optax", "orbax.checkpoint", "numpy", "mjx_push", "train")
+
+
+def versions() -> tuple[dict, dict]:
+    """Installed version of each distribution of PACKAGES (None: absent) and the folder each module of
+    MODULES is imported from (the image's site-packages, a carried --target folder or the checkout)."""
+    vers = {}
+    for name in PACKAGES:
+        try:
+            vers[name] = md.version(name)
+        except md.PackageNotFoundError:
+            vers[name] = None
+    where = {}
+    for mod in MODULES:
+        spec = importlib.util.find_spec(mod)
+        where[mod] = str(Path(spec.origin).parent.parent) if spec and spec.origin else None
+    return vers, where
 
 
 def machine() -> dict:
     dev = jax.devices()[0]
+    vers, where = versions()
     return {"backend": jax.default_backend(), "device": str(dev), "device_kind": dev.device_kind,
             "devices": len(jax.devices()), "host": f"{platform.machine()}, {os.cpu_count()} cores",
-            "jax": jax.__version__, "python": platform.python_version()}
+            "jax": jax.__version__, "python": platform.python_version(), "interpreter": sys.executable,
+            "pythonpath": os.environ.get("PYTHONPATH", ""), "xla_flags": os.environ.get("XLA_FLAGS", ""),
+            "packages": vers, "imported_from": where}
 
 
-def env_stage(cfg, sizes: list[int], steps: int, deadline: float) -> list[dict]:
-    rows = []
+def env_stage(cfg, sizes: list[int], steps: int, deadline: float, rows: list[dict], save) -> None:
+    """Append one row per size to `rows`, calling `save()` after each."""
     for n in sizes:
         if time.perf_counter() > deadline:
             rows.append({"num_envs": n, "skipped": "time budget spent"})
+            save()
             continue
         (r,) = measure_mjx(cfg.env, n, steps, 50, None, jax.random.PRNGKey(n), modes=("scheduled",))
         rows.append({"num_envs": n, "devices": r["devices"], "compile_s": r["compile_s"],
                      "useful_substeps_per_s": r["useful_substeps_per_s"], "env_steps_per_s": r["env_steps_per_s"],
                      "wall_s": r["wall_s"]})
+        save()
         print(f"env {n}: {r['useful_substeps_per_s']:,.0f} substeps/s, {r['env_steps_per_s']:,.0f} env steps/s, "
               f"compile {r['compile_s']:.0f} s", flush=True)
-    return rows
 
 
-def train_stages(cfg, learn_seconds: float, deadline: float) -> tuple[dict, dict]:
+def train_stages(cfg, learn_seconds: float, deadline: float, save) -> tuple[dict, dict]:
+    """The train and learn stages; `save(stage, value)` records partial results as they come."""
     loop = cfg.train.loop
     runner = Runner(make_train(cfg.train, make_push_adapter(cfg.env, enc.load(None))))
     ts = runner.trainer.init(jax.random.PRNGKey(loop.seed))
@@ -71,6 +106,7 @@ def train_stages(cfg, learn_seconds: float, deadline: float) -> tuple[dict, dict
     ts, m = runner.iteration(ts)
     first = time.perf_counter() - t0
     first_parts = {"first_batch_rollout_s": m["rollout_s"], "first_batch_learn_s": m["learn_s"]}
+    save("train", {"num_envs": loop.num_envs, "first_batch_s": first, **first_parts, "timed_batches": 0})
     batches = []
     stop = min(time.perf_counter() + learn_seconds, deadline)
     while time.perf_counter() < stop and int(ts.env_steps) < loop.total_env_steps:
@@ -120,22 +156,36 @@ def main(argv=None) -> None:
     cfg = presets.make("vpm", opts["preset"], 0)
     if a.tiny:  # one more batch than the warm-up, so the timed batches learn
         cfg = presets.override(cfg, **{"loop.total_env_steps": 1200})
-    record = {"machine": machine(), "options": opts, "stages": {}}
+    record = {"machine": machine(), "options": opts, "stages": {"env": []}, "complete": False}
 
-    def save(stage: str, value) -> None:
-        record["stages"][stage] = value
+    def save(stage: str | None = None, value=None) -> None:
+        if stage is not None:
+            record["stages"][stage] = value
         record["wall_s"] = time.perf_counter() - start
         a.out.parent.mkdir(parents=True, exist_ok=True)
-        a.out.write_text(json.dumps(record, indent=2) + "\n")
+        tmp = a.out.with_suffix(".tmp")
+        tmp.write_text(json.dumps(record, indent=2) + "\n")
+        tmp.replace(a.out)  # a reader (or a kill) never sees half a file
 
-    save("env", env_stage(cfg, opts["sizes"], opts["env_steps"], deadline))
-    if time.perf_counter() > deadline:
-        save("train", {"skipped": "time budget spent"})
-        save("learn", {"skipped": "time budget spent"})
-    else:
-        train, learn = train_stages(cfg, opts["learn_seconds"], deadline)
-        save("train", train)
-        save("learn", learn)
+    rows = record["stages"]["env"]
+    try:
+        save()
+        env_stage(cfg, opts["sizes"][:1], opts["env_steps"], deadline, rows, save)
+        if time.perf_counter() > deadline:
+            save("train", {"skipped": "time budget spent"})
+            save("learn", {"skipped": "time budget spent"})
+        else:
+            train, learn = train_stages(cfg, opts["learn_seconds"], deadline, save)
+            save("train", train)
+            save("learn", learn)
+        env_stage(cfg, opts["sizes"][1:], opts["env_steps"], deadline, rows, save)
+        record["complete"] = True
+    except KeyboardInterrupt:  # gpu_check.sh's timeout: keep what was measured, say why it stopped
+        record["stopped"] = "interrupted (SIGINT: the wrapper's timeout or the user)"
+        save()
+        print(f"interrupted; wrote {a.out} ({record['wall_s']:.0f} s)")
+        sys.exit(124)
+    save()
     print(f"wrote {a.out} ({record['wall_s']:.0f} s)")
 
 
