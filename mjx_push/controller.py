@@ -75,7 +75,7 @@ def joint_velocity(
     e_pos = (target - p) * jnp.array([1.0, 1.0, cfg.hold_gain])
     err = jnp.concatenate([cfg.hold_gain * e_tilt, e_pos])
     gram = jac @ jac.T + cfg.damping**2 * jnp.eye(jac.shape[0])
-    dq = cfg.gain * (jac.T @ jnp.linalg.solve(gram, err))
+    dq = cfg.gain * (jac.T @ spd_solve(gram, err))
     dq = jnp.concatenate([dq, jnp.zeros(1)])
     # Clip to the velocity limits and to the distance left to each position limit (reached no sooner
     # than in 1 s at the law's unit gain); a joint outside its range may only move back in.
@@ -85,6 +85,27 @@ def joint_velocity(
     hi = jnp.minimum(vlim, jnp.asarray(scene.JOINT_RANGE[:, 1]) - q)
     dq = jnp.minimum(jnp.maximum(dq, lo), hi)
     return dq * cfg.safety_scale
+
+
+def spd_solve(a: jax.Array, b: jax.Array) -> jax.Array:
+    """x with a x = b for a small symmetric positive definite `a` (n, n) (n fixed at trace time), by a
+    Cholesky factorisation unrolled into scalar arithmetic. On a GPU a general `jnp.linalg.solve`
+    becomes a solver library call of its own every substep; these few dozen multiply-adds fuse with the
+    rest of the controller. The damped Gram matrix J J^T + lambda^2 I is positive definite for any
+    lambda > 0, so the square roots are of positive numbers."""
+    n = a.shape[0]
+    low = [[None] * n for _ in range(n)]
+    for j in range(n):
+        low[j][j] = jnp.sqrt(a[j, j] - sum(low[j][k] ** 2 for k in range(j)))
+        for i in range(j + 1, n):
+            low[i][j] = (a[i, j] - sum(low[i][k] * low[j][k] for k in range(j))) / low[j][j]
+    y = []
+    for i in range(n):  # L y = b
+        y.append((b[i] - sum(low[i][k] * y[k] for k in range(i))) / low[i][i])
+    x = [None] * n
+    for i in reversed(range(n)):  # L^T x = y
+        x[i] = (y[i] - sum(low[k][i] * x[k] for k in range(i + 1, n))) / low[i][i]
+    return jnp.stack(x)
 
 
 def rod_tilt(z_axis: jax.Array) -> jax.Array:

@@ -191,7 +191,13 @@ class PushEnv(Env):
         return state.replace(info=info)
 
     def advance(self, state: State, max_substeps: int | None = None) -> State:
-        """Run up to `max_substeps` substeps (all remaining if None) of the current env step."""
+        """Run up to `max_substeps` substeps (all remaining if None) of the current env step.
+
+        With `max_substeps` the chunk is a loop of exactly that many iterations (a `scan`, whose trip
+        count XLA knows at compile time), spent substeps masked: a GPU runs it without copying a loop
+        predicate to the host each substep. Under `vmap` this is what a `while_loop` with a batched
+        predicate computes too (every iteration runs for all and selects), so the results are the
+        same. Without it (one environment's whole step) a `while_loop` stops at the last substep."""
         m = self.model(state.info["params"])
         cfg = self.config
         goal_xy = state.info["params"].goal[:2]
@@ -218,12 +224,16 @@ class PushEnv(Env):
             )
             return data, info, k + 1
 
-        def cond(carry):
-            _, info, k = carry
-            more = info["substeps_left"] > 0
-            return more if max_substeps is None else more & (k < max_substeps)
+        carry0 = (state.pipeline_state, dict(state.info), 0)
+        if max_substeps is None:
+            data, info, _ = jax.lax.while_loop(lambda c: c[1]["substeps_left"] > 0, substep, carry0)
+        else:
+            def masked(carry, _):
+                new = substep(carry)
+                active = carry[1]["substeps_left"] > 0
+                return jax.tree.map(lambda a, b: jnp.where(active, a, b), new, carry), None
 
-        data, info, _ = jax.lax.while_loop(cond, substep, (state.pipeline_state, dict(state.info), 0))
+            (data, info, _), _ = jax.lax.scan(masked, carry0, None, length=max_substeps)
         return state.replace(pipeline_state=data, info=info)
 
     def finish_step(self, state: State) -> State:

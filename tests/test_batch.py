@@ -76,6 +76,27 @@ def test_step_phases_in_chunks_give_the_steps_result(batch):
         np.testing.assert_allclose(np.asarray(get(s), np.float64), np.asarray(get(want), np.float64), atol=1e-6)
 
 
+def _eqns(jaxpr):
+    """Every equation of a jaxpr, sub-jaxprs (loops, conds, shard_map, pjit) included."""
+    for e in jaxpr.eqns:
+        yield e
+        for v in e.params.values():
+            for sub in v if isinstance(v, (tuple, list)) else (v,):
+                inner = getattr(sub, "jaxpr", sub)
+                if hasattr(inner, "eqns"):
+                    yield from _eqns(inner)
+
+
+def test_a_chunk_of_substeps_has_a_trip_count_known_at_compile_time(batch):
+    """The scheduler's chunk is a loop of exactly `max_substeps` iterations (a scan: XLA compiles it
+    to a while loop with a known trip count), not a loop whose predicate the device must evaluate and
+    send to the host after every substep."""
+    state = batch.begin(batch.jit_reset(jax.random.PRNGKey(1)), jnp.zeros((4, 3)), jnp.ones(4, bool))
+    eqns = list(_eqns(jax.make_jaxpr(lambda s: batch.advance(s, 7))(state).jaxpr))
+    chunks = [e for e in eqns if e.primitive.name == "scan" and e.params["length"] == 7]
+    assert len(chunks) == len(batch.envs)  # one per shape group
+
+
 def test_utilisation(batch):
     n = jnp.array([10, 600, 300, 300])
     # Box group waits for 600 (useful 610 of 1200), cylinder group for 300 (600 of 600).

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mjx_push import scene
+from mjx_push import controller, scene
 from tests.helpers import B, HOME_XY, a_s_for, action_for, make_params
 
 
@@ -64,6 +64,20 @@ def test_sampled_mass_and_friction_reach_the_simulation(box_sim):
         table = np.all(pair == sorted((ids.object_geom, ids.table_geom)), axis=-1)
         assert table.any()
         np.testing.assert_allclose(np.asarray(con.friction[i])[table, 0], float(p.friction[0]), rtol=1e-6)
+
+
+def test_the_unrolled_cholesky_solves_damped_gram_systems():
+    """controller.spd_solve against a float64 general solve on the controller's kind of system
+    (J J^T + lambda^2 I for 4 and 5 rows, near-singular Jacobians included)."""
+    rng = np.random.default_rng(0)
+    for n in (4, 5):
+        for scale in (1.0, 1e-3):  # a well-conditioned Jacobian and one near a singularity
+            jac = rng.normal(size=(n, 6)) * np.r_[np.ones(n - 1), scale][:, None]
+            a = jac @ jac.T + 0.2**2 * np.eye(n)
+            b = rng.normal(size=n)
+            want = np.linalg.solve(a, b)
+            got = np.asarray(controller.spd_solve(jnp.asarray(a, jnp.float32), jnp.asarray(b, jnp.float32)))
+            np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-5)
 
 
 def test_controller_tracks_target_and_keeps_rod_vertical(box_sim):
