@@ -26,7 +26,7 @@ class Corrections:
     @classmethod
     def init(cls) -> "Corrections":
         return cls(
-            d_prev=jnp.asarray(jnp.inf, jnp.float32),
+            d_prev=jnp.asarray(jnp.inf, jnp.result_type(float)),
             flag=jnp.asarray(False),
             overshoot=jnp.asarray(0, jnp.int32),
             distance=jnp.asarray(0, jnp.int32),

@@ -68,7 +68,9 @@ class EnvConfig:
 
 # Explicit dtypes everywhere in the state: a weakly typed scalar returned by reset but strongly typed
 # after a step would make every jitted caller compile twice.
-_F0 = np.float32(0.0)
+def _f0() -> jax.Array:
+    """A float zero of JAX's default float type (float32; float64 under jax_enable_x64)."""
+    return jnp.zeros((), jnp.result_type(float))
 
 
 def decode_substeps(a_s: jax.Array, substeps: tuple[int, int]) -> jax.Array:
@@ -109,7 +111,7 @@ class PushEnv(Env):
         self.ids = scene.scene_ids(self.mj_model)
         self.sys = mjx.put_model(self.mj_model)
         self._data0 = mjx.make_data(self.sys)
-        self.home_flange = jnp.asarray(scene.home_flange_pos(), jnp.float32)
+        self.home_flange = jnp.asarray(scene.home_flange_pos(), jnp.result_type(float))
 
     # --- brax Env interface -------------------------------------------------------------------------
     @property
@@ -153,15 +155,15 @@ class PushEnv(Env):
             "episode_invalid": jnp.asarray(False),
             "invalid_count": zero_i,
             "bad_actions": zero_i,
-            "max_tilt": _F0,
-            "max_height_error": _F0,
-            "truncation": _F0,
+            "max_tilt": _f0(),
+            "max_height_error": _f0(),
+            "truncation": _f0(),
         }
         info.update(self._ground_truth(data, params))
         obs = self._observation(data, params, goal_mask, k_noise)
         reward, success = self._reward(info)
         metrics = {"success": success}
-        return State(data, obs, reward, _F0, metrics, info)
+        return State(data, obs, reward, _f0(), metrics, info)
 
     def step(self, state: State, action: jax.Array) -> State:
         if "first_pipeline_state" in state.info:  # a static check: info's keys are fixed when tracing
@@ -184,7 +186,7 @@ class PushEnv(Env):
         n = decode_substeps(action[2], cfg.substeps)
         info = dict(state.info)
         info.update(target=target, substeps_left=n, substeps=n, bad_actions=info["bad_actions"] + bad)
-        info.update(max_tilt=_F0, max_height_error=_F0)
+        info.update(max_tilt=_f0(), max_height_error=_f0())
         if cfg.controller.hold_per_step:
             m = self.model(info["params"])
             info["held_ctrl"] = ctl.joint_velocity(m, state.pipeline_state, target, self.ids, cfg.controller)
@@ -251,7 +253,7 @@ class PushEnv(Env):
         info["step"] = info["step"] + 1
         info["episode_invalid"] = info["episode_invalid"] | invalid
         info["invalid_count"] = info["invalid_count"] + invalid.astype(jnp.int32)
-        done = (info["step"] >= self.config.episode_length).astype(jnp.float32)
+        done = (info["step"] >= self.config.episode_length).astype(jnp.result_type(float))
         info["truncation"] = done  # time limit only: learners bootstrap
         obs = self._observation(data, params, info["goal_mask"], k_noise)
         reward, success = self._reward(info)
@@ -269,7 +271,7 @@ class PushEnv(Env):
         obj = jnp.concatenate(
             [params.start[:2], (scene.TABLE_TOP + hh)[None], yaw_quat(params.start[2])]
         )
-        qpos = jnp.concatenate([jnp.asarray(scene.HOME_QPOS, jnp.float32), obj])
+        qpos = jnp.concatenate([jnp.asarray(scene.HOME_QPOS, jnp.result_type(float)), obj])
         data = self._data0.replace(qpos=qpos)
         return mjx.forward(self.model(params), data)
 
@@ -300,7 +302,7 @@ class PushEnv(Env):
 
     def _reward(self, info) -> tuple[jax.Array, jax.Array]:
         dist = jnp.linalg.norm(info["object_xy"] - info["goal_xy"])
-        success = (dist < self.config.success_tau).astype(jnp.float32)
+        success = (dist < self.config.success_tau).astype(jnp.result_type(float))
         return success - 1.0, success
 
     def _valid(self, data: mjx.Data, params: objects.ObjectParams) -> jax.Array:

@@ -28,7 +28,7 @@ FOCAL = (scene.IMAGE_SIZE / 2) / math.tan(math.radians(scene.CAMERA_FOVY) / 2)  
 
 def _pixel_offsets(n: int = scene.IMAGE_SIZE) -> jax.Array:
     """(n, n, 2) pixel centres relative to the principal point, as (col, row) = world (x, y) direction."""
-    c = jnp.arange(n, dtype=jnp.float32) + 0.5 - n / 2
+    c = jnp.arange(n, dtype=jnp.result_type(float)) + 0.5 - n / 2
     cols, rows = jnp.meshgrid(c, c, indexing="xy")
     return jnp.stack([cols, rows], axis=-1)
 

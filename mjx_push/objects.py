@@ -105,7 +105,7 @@ def sample_improved_mass(key: jax.Array, cfg: ObjectConfig, shape=()) -> jax.Arr
     f_min = cfg.mass[0] * cfg.friction[0]
     f_max = cfg.mass[1] * cfg.friction[1]
     x = jnp.clip(jax.random.exponential(kx, shape) * cfg.exp_scale, 0.0, 1.0)
-    y = jax.random.bernoulli(ky, 0.5, shape).astype(jnp.float32)
+    y = jax.random.bernoulli(ky, 0.5, shape).astype(jnp.result_type(float))
     return (f_max - f_min) / cfg.mu_k * ((1 - x) * (1 - y) + x * y) + f_min / cfg.mu_k
 
 
@@ -162,7 +162,7 @@ def sample(key: jax.Array, cfg: ObjectConfig, geom_type: str, home_xy: jax.Array
         mu = _uniform(ks[3], cfg.friction)
     else:
         mass = sample_improved_mass(ks[2], cfg)
-        mu = jnp.asarray(cfg.mu_k, jnp.float32)
+        mu = jnp.asarray(cfg.mu_k, jnp.result_type(float))
     torsional = _uniform(ks[4], cfg.torsional)
     if geom_type == "box":
         size = jnp.stack([length / 2, width / 2, height / 2])
@@ -171,7 +171,7 @@ def sample(key: jax.Array, cfg: ObjectConfig, geom_type: str, home_xy: jax.Array
         size = jnp.stack([radius, height / 2, 0.0])
         ixx = mass * (3 * radius**2 + height**2) / 12.0
         inertia = jnp.stack([ixx, ixx, mass * radius**2 / 2])
-    friction = jnp.stack([mu, torsional, jnp.asarray(scene.OBJECT_ROLL_FRICTION, jnp.float32)])
+    friction = jnp.stack([mu, torsional, jnp.asarray(scene.OBJECT_ROLL_FRICTION, jnp.result_type(float))])
     start = _pose(ks[5], home_xy, cfg, cfg.min_start_dist)
     goal = _pose(ks[6], home_xy, cfg, 0.0)
     return ObjectParams(size=size, mass=mass, inertia=inertia, friction=friction, start=start, goal=goal)
