@@ -30,6 +30,18 @@ class Export:
     encoder: Literal["embed", "package"] = "embed"
     """embed the encoder's weights (a self-contained file, ~4 MB), or reference the encoder this package
     ships by its sha256 (a few hundred kB; loading then needs mjx-push installed, at that encoder)"""
+    provenance: tuple[str, ...] = ()
+    """KEY=VALUE facts to record in the file's provenance beside the source and this checkout's commit
+    (e.g. budget=cpu-long trained_commit=7da1b98): what a reader of the file needs to trace it"""
+
+    def _provenance(self) -> dict:
+        extra = {}
+        for item in self.provenance:
+            key, sep, value = item.partition("=")
+            if not sep or not key.strip():
+                raise ValueError(f"--provenance takes KEY=VALUE items, got {item!r}")
+            extra[key.strip()] = value
+        return extra
 
     def run(self) -> dict:
         from rich.console import Console
@@ -49,12 +61,13 @@ class Export:
                                  "policy: best_policy.msgpack / .json or their stem)")
         if Path(self.out).suffix != ".npz":
             raise ValueError(f"OUT.npz must be an .npz path, got {self.out}")
+        extra = self._provenance()
         try:
             policy = load_policy(stem)
         except ValueError as e:
             raise ValueError(f"SOURCE {source}: {e}") from None
         meta = export_policy(policy, self.out, encoder=self.encoder,
-                             provenance={"source": str(stem), "commit": source_commit()})
+                             provenance={"source": str(stem), "commit": source_commit(), **extra})
         size = Path(self.out).stat().st_size
         Console().print(f"wrote [bold]{self.out}[/] ({size / 1e6:.2f} MB): agent {meta['agent']['kind']}, "
                         f"format {FORMAT} version {FORMAT_VERSION}, from {stem}; scores {meta['scores']}")

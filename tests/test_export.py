@@ -416,6 +416,12 @@ def test_export_command_from_a_run_directory(exported, tmp_path):
     for k in a.arrays:
         np.testing.assert_array_equal(a.arrays[k], b.arrays[k])
     assert Export(run_dir / "best_policy.json", tmp_path / "again.npz").run()["agent"]["kind"] == "stacked"
+    meta = Export(run_dir, tmp_path / "traced.npz", provenance=("budget=cpu-long", "note=a=b")).run()
+    assert meta["provenance"]["budget"] == "cpu-long" and meta["provenance"]["note"] == "a=b"
+    assert meta["provenance"]["source"] == str(run_dir / "best_policy")
+    with pytest.raises(ValueError, match="--provenance takes KEY=VALUE items, got 'budget'"):
+        Export(run_dir, tmp_path / "y.npz", provenance=("budget",)).run()
+    assert not (tmp_path / "y.npz").exists()  # refused before anything is written
     with pytest.raises(ValueError, match=f"SOURCE {tmp_path / 'nothing'}: no such file or directory"):
         Export(tmp_path / "nothing", tmp_path / "x.npz").run()
     with pytest.raises(ValueError, match="SOURCE: run directory"):
