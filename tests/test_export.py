@@ -562,3 +562,25 @@ def test_pretrained_names_resolve_for_eval_and_deploy(package_exported, tmp_path
     d = Deploy(policy=Path("pretrained:egru"), episodes=1)
     d._check()
     assert d.policy == shipped / "egru.npz"
+
+
+def test_the_shipped_policies_load_act_and_name_their_origin():
+    """Every policy in export/pretrained_policies/ is a package-encoder file of its agent kind that
+    loads with NumPy and acts, and names the run, budget, seed and commit that trained it."""
+    from export import pretrained
+
+    ships = pretrained.available()
+    assert ships and set(ships) <= set(AGENT_KINDS), ships
+    masks, goal = _moving_object("box", 5, steps=3)
+    for name, path in ships.items():
+        f = pfile.load_npz(path)
+        assert f.kind == name
+        assert f.metadata["encoder"]["weights"] == {"source": "package", "sha256": pfile.package_encoder_sha256()}
+        prov = f.metadata["provenance"]
+        assert prov["budget"] == "cpu-long" and prov["seed"].isdigit() and len(prov["trained_commit"]) >= 7
+        assert prov["run"].endswith(f"{name}-s{prov['seed']}")
+        assert path.stat().st_size < 1_000_000
+        policy = NumpyPolicy.from_file(path)
+        for m in masks:
+            a = policy.act_raw(m, goal, np.array([0.45, 0.0]))
+            assert a.shape == (3,) and np.all(np.isfinite(a)) and np.all(np.abs(a) <= 1.0)
