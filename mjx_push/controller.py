@@ -75,7 +75,9 @@ def joint_velocity(
     e_pos = (target - p) * jnp.array([1.0, 1.0, cfg.hold_gain])
     err = jnp.concatenate([cfg.hold_gain * e_tilt, e_pos])
     gram = jac @ jac.T + cfg.damping**2 * jnp.eye(jac.shape[0])
-    dq = cfg.gain * (jac.T @ spd_solve(gram, err))
+    # spd_solve (below) would fuse on a GPU, but its different rounding flips a borderline corrections
+    # count in tests/test_eval.py's scripted pushes; kept off until that test is made robust.
+    dq = cfg.gain * (jac.T @ jnp.linalg.solve(gram, err))
     dq = jnp.concatenate([dq, jnp.zeros(1)])
     # Clip to the velocity limits and to the distance left to each position limit (reached no sooner
     # than in 1 s at the law's unit gain); a joint outside its range may only move back in.
