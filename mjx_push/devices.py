@@ -14,21 +14,18 @@ partitioner split the batched computation (same results; checked by tests/test_b
 
 from __future__ import annotations
 
-import importlib.metadata
-
 import jax
 from jax.sharding import NamedSharding, PartitionSpec
+
+from mjx_push.xla import jaxlib_line
 
 AXIS = "envs"
 
 
 def _shard_map_compiles() -> bool:
     """False on the jaxlib line whose CPU compiler crashes on the environments' shard_map (0.11)."""
-    try:
-        major, minor = (int(x) for x in importlib.metadata.version("jaxlib").split(".")[:2])
-    except (importlib.metadata.PackageNotFoundError, ValueError):
-        return True
-    return (major, minor) < (0, 11) or jax.default_backend() != "cpu"
+    line = jaxlib_line()
+    return line is None or line < (0, 11) or jax.default_backend() != "cpu"
 
 
 def env_mesh(counts: tuple[int, ...], max_devices: int | None = None) -> jax.sharding.Mesh | None:

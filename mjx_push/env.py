@@ -206,7 +206,7 @@ class PushEnv(Env):
         home_z = self.home_flange[2]
 
         def substep(carry):
-            data, info, k = carry
+            data, info = carry
             if cfg.controller.hold_per_step:
                 dq = info["held_ctrl"]
             else:
@@ -224,18 +224,18 @@ class PushEnv(Env):
                 max_tilt=jnp.maximum(info["max_tilt"], ctl.rod_tilt(z)),
                 max_height_error=jnp.maximum(info["max_height_error"], jnp.abs(p[2] - home_z)),
             )
-            return data, info, k + 1
+            return data, info
 
-        carry0 = (state.pipeline_state, dict(state.info), 0)
+        carry0 = (state.pipeline_state, dict(state.info))
         if max_substeps is None:
-            data, info, _ = jax.lax.while_loop(lambda c: c[1]["substeps_left"] > 0, substep, carry0)
+            data, info = jax.lax.while_loop(lambda c: c[1]["substeps_left"] > 0, substep, carry0)
         else:
             def masked(carry, _):
                 new = substep(carry)
                 active = carry[1]["substeps_left"] > 0
                 return jax.tree.map(lambda a, b: jnp.where(active, a, b), new, carry), None
 
-            (data, info, _), _ = jax.lax.scan(masked, carry0, None, length=max_substeps)
+            (data, info), _ = jax.lax.scan(masked, carry0, None, length=max_substeps)
         return state.replace(pipeline_state=data, info=info)
 
     def finish_step(self, state: State) -> State:

@@ -39,13 +39,20 @@ def cpu_device_count() -> int:
     return max(1, min(cores, MAX_DEVICES))
 
 
-def needs_fusion_flag() -> bool:
-    """Whether the installed jaxlib has (and needs) the fusion-emitter flag: the 0.10 line and older."""
+def jaxlib_line() -> tuple[int, int] | None:
+    """(major, minor) of the installed jaxlib, read without importing it; None if unknown."""
     try:
         major, minor = (int(x) for x in importlib.metadata.version("jaxlib").split(".")[:2])
     except (importlib.metadata.PackageNotFoundError, ValueError):
-        return True  # unknown build: keep the flag that the tested line needs
-    return (major, minor) < (0, 11)
+        return None
+    return major, minor
+
+
+def needs_fusion_flag() -> bool:
+    """Whether the installed jaxlib has (and needs) the fusion-emitter flag: the 0.10 line and older
+    (an unknown build keeps the flag the tested line needs)."""
+    line = jaxlib_line()
+    return line is None or line < (0, 11)
 
 
 def apply_cpu_flags() -> None:
