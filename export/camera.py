@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mjx_push import scene
+from mjx_push.errors import ConfigError
 
 OUT = scene.IMAGE_SIZE
 COLOR_SPACES = ("rgb", "hsv")
@@ -46,9 +47,9 @@ def _triple(name: str, v) -> tuple[float, float, float]:
     try:
         t = tuple(float(x) for x in v)
     except TypeError:
-        raise ValueError(f"{name} must be three numbers, got {v!r}") from None
+        raise ConfigError(f"{name} must be three numbers, got {v!r}") from None
     if len(t) != 3 or not all(np.isfinite(t)):
-        raise ValueError(f"{name} must be three finite numbers, got {v!r}")
+        raise ConfigError(f"{name} must be three finite numbers, got {v!r}")
     return t
 
 
@@ -67,7 +68,7 @@ class MaskPipeline:
 
     def __post_init__(self):
         if self.color_space not in COLOR_SPACES:
-            raise ValueError(f"color_space must be one of {COLOR_SPACES}, got {self.color_space!r}")
+            raise ConfigError(f"color_space must be one of {COLOR_SPACES}, got {self.color_space!r}")
         d_lower, d_upper = DEFAULT_THRESHOLDS[self.color_space]
         lower = _triple("lower", d_lower if self.lower is None else self.lower)
         upper = _triple("upper", d_upper if self.upper is None else self.upper)
@@ -77,47 +78,47 @@ class MaskPipeline:
         for name, t in (("lower", lower), ("upper", upper)):
             for k, (x, hi) in enumerate(zip(t, top)):
                 if not 0.0 <= x <= hi:
-                    raise ValueError(
+                    raise ConfigError(
                         f"{name}[{k}] must be in [0, {hi:g}] for color_space {self.color_space!r}, got {x:g}")
         # Only the hue may wrap (lower > upper); every other channel needs lower <= upper.
         for k in range(3):
             wraps = self.color_space == "hsv" and k == 0
             if lower[k] > upper[k] and not wraps:
-                raise ValueError(f"lower[{k}] must be <= upper[{k}], got {lower[k]:g} > {upper[k]:g}")
+                raise ConfigError(f"lower[{k}] must be <= upper[{k}], got {lower[k]:g} > {upper[k]:g}")
         if self.crop is not None:
             c = tuple(self.crop)
             if len(c) != 4 or not all(isinstance(x, (int, np.integer)) for x in c):
-                raise ValueError(f"crop must be (top, left, bottom, right) integers or None, got {self.crop!r}")
+                raise ConfigError(f"crop must be (top, left, bottom, right) integers or None, got {self.crop!r}")
             top, left, bottom, right = c
             if not (0 <= top < bottom and 0 <= left < right):
-                raise ValueError(f"crop must satisfy 0 <= top < bottom and 0 <= left < right, got {self.crop!r}")
+                raise ConfigError(f"crop must satisfy 0 <= top < bottom and 0 <= left < right, got {self.crop!r}")
             object.__setattr__(self, "crop", tuple(int(x) for x in c))
         for name in ("open_size", "close_size"):
             k = getattr(self, name)
             if not isinstance(k, (int, np.integer)) or isinstance(k, bool) or k < 1 or k % 2 == 0:
-                raise ValueError(f"{name} must be an odd integer >= 1, got {k!r}")
+                raise ConfigError(f"{name} must be an odd integer >= 1, got {k!r}")
         if self.resize not in RESIZE_MODES:
-            raise ValueError(f"resize must be one of {RESIZE_MODES}, got {self.resize!r}")
+            raise ConfigError(f"resize must be one of {RESIZE_MODES}, got {self.resize!r}")
         if not 0.0 < self.area_threshold <= 1.0:
-            raise ValueError(f"area_threshold must be in (0, 1], got {self.area_threshold!r}")
+            raise ConfigError(f"area_threshold must be in (0, 1], got {self.area_threshold!r}")
         for name in ("flip_horizontal", "flip_vertical"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
-                raise ValueError(f"{name} must be a bool, got {getattr(self, name)!r}")
+                raise ConfigError(f"{name} must be a bool, got {getattr(self, name)!r}")
 
     def to_mask(self, rgb: np.ndarray) -> np.ndarray:
         """bool (64, 64) object mask from an RGB frame (H, W, 3) uint8."""
         if not isinstance(rgb, np.ndarray):
-            raise ValueError(f"rgb must be a numpy array (H, W, 3) uint8, got {type(rgb).__name__}")
+            raise ConfigError(f"rgb must be a numpy array (H, W, 3) uint8, got {type(rgb).__name__}")
         if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.shape[0] < 1 or rgb.shape[1] < 1:
-            raise ValueError(f"rgb must have shape (H, W, 3), got {rgb.shape}")
+            raise ConfigError(f"rgb must have shape (H, W, 3), got {rgb.shape}")
         if rgb.dtype != np.uint8:
-            raise ValueError(f"rgb must have dtype uint8, got {rgb.dtype}")
+            raise ConfigError(f"rgb must have dtype uint8, got {rgb.dtype}")
         img = rgb
         if self.crop is not None:
             top, left, bottom, right = self.crop
             h, w = rgb.shape[:2]
             if bottom > h or right > w:
-                raise ValueError(f"crop {self.crop} lies outside the {h}x{w} image (bottom <= {h}, right <= {w})")
+                raise ConfigError(f"crop {self.crop} lies outside the {h}x{w} image (bottom <= {h}, right <= {w})")
             img = img[top:bottom, left:right]
         if self.flip_vertical:
             img = img[::-1]

@@ -15,6 +15,7 @@ import tyro
 
 from train import cli as train_cli
 from train.eval_options import EvalOptions
+from mjx_push.errors import ConfigError
 
 VIDEO_FPS = 5  # one frame per environment step
 
@@ -39,7 +40,7 @@ class Export:
         for item in self.provenance:
             key, sep, value = item.partition("=")
             if not sep or not key.strip():
-                raise ValueError(f"--provenance takes KEY=VALUE items, got {item!r}")
+                raise ConfigError(f"--provenance takes KEY=VALUE items, got {item!r}")
             extra[key.strip()] = value
         return extra
 
@@ -53,19 +54,19 @@ class Export:
         if source.is_dir():
             stem = source / "best_policy"
             if not stem.with_suffix(".msgpack").is_file():
-                raise ValueError(f"SOURCE: run directory {source} has no best_policy.msgpack (has the run finished?)")
+                raise ConfigError(f"SOURCE: run directory {source} has no best_policy.msgpack (has the run finished?)")
         else:
             stem = source.with_suffix("") if source.suffix in (".msgpack", ".json") else source
             if not (source.exists() or stem.with_suffix(".msgpack").exists() or stem.with_suffix(".json").exists()):
-                raise ValueError(f"SOURCE {source}: no such file or directory (a run directory, or a saved "
+                raise ConfigError(f"SOURCE {source}: no such file or directory (a run directory, or a saved "
                                  "policy: best_policy.msgpack / .json or their stem)")
         if Path(self.out).suffix != ".npz":
-            raise ValueError(f"OUT.npz must be an .npz path, got {self.out}")
+            raise ConfigError(f"OUT.npz must be an .npz path, got {self.out}")
         extra = self._provenance()
         try:
             policy = load_policy(stem)
         except ValueError as e:
-            raise ValueError(f"SOURCE {source}: {e}") from None
+            raise ConfigError(f"SOURCE {source}: {e}") from None
         meta = export_policy(policy, self.out, encoder=self.encoder,
                              provenance={"source": str(stem), "commit": source_commit(), **extra})
         size = Path(self.out).stat().st_size
@@ -112,16 +113,16 @@ class Deploy(EvalOptions):
         from export.cpu_env import MASK_SOURCES
 
         if self.sim != "cpu":
-            raise ValueError(f"--sim must be 'cpu', got {self.sim!r}")
+            raise ConfigError(f"--sim must be 'cpu', got {self.sim!r}")
         if self.mask_source not in MASK_SOURCES:
-            raise ValueError(f"--mask-source must be one of {MASK_SOURCES}, got {self.mask_source!r}")
+            raise ConfigError(f"--mask-source must be one of {MASK_SOURCES}, got {self.mask_source!r}")
         from export.pretrained import resolve
 
         self.policy = resolve(self.policy)
         if Path(self.policy).suffix != ".npz":
-            raise ValueError(f"POLICY.npz must be an exported .npz (mjx-push export makes one), got {self.policy}")
+            raise ConfigError(f"POLICY.npz must be an exported .npz (mjx-push export makes one), got {self.policy}")
         if not Path(self.policy).is_file():
-            raise ValueError(f"POLICY.npz {self.policy}: no such file")
+            raise ConfigError(f"POLICY.npz {self.policy}: no such file")
         self.check_options()
 
     def run(self) -> dict:
@@ -137,7 +138,7 @@ class Deploy(EvalOptions):
         try:
             policy = NumpyPolicy.from_file(self.policy)
         except ValueError as e:
-            raise ValueError(f"POLICY.npz {self.policy}: {e}") from None
+            raise ConfigError(f"POLICY.npz {self.policy}: {e}") from None
         spec = self.spec()
         config = sim_eval.env_config(policy.metadata, spec)
         console = Console()
@@ -192,7 +193,7 @@ def _open_video(path: Path):
     try:
         return iio.get_writer(path, fps=VIDEO_FPS)
     except (ValueError, ImportError, RuntimeError) as e:
-        raise ValueError(f"--video: no .mp4 writer is available ({str(e).splitlines()[0]}); pip install "
+        raise ConfigError(f"--video: no .mp4 writer is available ({str(e).splitlines()[0]}); pip install "
                          f"'mjx-push[mp4]', or write a GIF: --video {path.with_suffix('.gif')}") from None
 
 
@@ -214,7 +215,7 @@ class Eval(train_cli.Eval):
         try:
             return load_as_policy(path)
         except ValueError as e:
-            raise ValueError(f"POLICY {path}: {e}") from None
+            raise ConfigError(f"POLICY {path}: {e}") from None
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -228,7 +229,7 @@ def main(argv: list[str] | None = None) -> int:
         cmd = tyro.extras.subcommand_cli_from_dict(commands, args=argv, prog="mjx-push",
                                                    config=(tyro.conf.FlagCreatePairsOff,))
         cmd.run()
-    except ValueError as e:  # configuration errors name the field: show them without a traceback
+    except ConfigError as e:  # the user's input is wrong and the message says how: no traceback
         print(f"mjx-push: error: {e}", file=sys.stderr)
         return 2
     return 0

@@ -49,6 +49,7 @@ from export import masks_np
 from mjx_push import objects, scene
 from mjx_push.env import EnvConfig
 from mjx_push.renderer import new_renderer, renderer_available, unavailable_reason  # noqa: F401
+from mjx_push.errors import ConfigError
 
 MASK_SOURCES = ("render", "analytic", "auto")
 CAMERAS = ("under_table", "top")
@@ -112,12 +113,12 @@ def params_to_numpy(params: objects.ObjectParams) -> objects.ObjectParams:
     for name, shape in shapes.items():
         v = np.asarray(getattr(params, name), dtype=np.float64)
         if v.shape != shape:
-            raise ValueError(f"params.{name} must have shape {shape}, got {v.shape}")
+            raise ConfigError(f"params.{name} must have shape {shape}, got {v.shape}")
         if not np.all(np.isfinite(v)):
-            raise ValueError(f"params.{name} must be finite, got {v}")
+            raise ConfigError(f"params.{name} must be finite, got {v}")
         out[name] = v
     if np.any(out["size"][:2] <= 0) or out["mass"] <= 0 or np.any(out["inertia"] <= 0):
-        raise ValueError("params.size, params.mass and params.inertia must be positive")
+        raise ConfigError("params.size, params.mass and params.inertia must be positive")
     return objects.ObjectParams(**out)
 
 
@@ -184,13 +185,13 @@ class CpuPushEnv:
     def __init__(self, config: EnvConfig = EnvConfig(), geom_type: str | None = None, mask_source: str = "auto",
                  seed: int | None = None):
         if not isinstance(config, EnvConfig):
-            raise ValueError(f"config must be an mjx_push.env.EnvConfig, got {type(config).__name__}")
+            raise ConfigError(f"config must be an mjx_push.env.EnvConfig, got {type(config).__name__}")
         shapes = config.objects.shapes()
         if geom_type is not None and geom_type not in shapes:
-            raise ValueError(f"geom_type must be None or one of {shapes} (shape filter {config.objects.shape!r}),"
+            raise ConfigError(f"geom_type must be None or one of {shapes} (shape filter {config.objects.shape!r}),"
                              f" got {geom_type!r}")
         if mask_source not in MASK_SOURCES:
-            raise ValueError(f"mask_source must be one of {MASK_SOURCES}, got {mask_source!r}")
+            raise ConfigError(f"mask_source must be one of {MASK_SOURCES}, got {mask_source!r}")
         self.config = config
         self.fixed_geom_type = geom_type
         self.np_random = np.random.default_rng(seed)
@@ -218,9 +219,9 @@ class CpuPushEnv:
         if geom_type is None:
             geom_type = shapes[int(self.np_random.integers(len(shapes)))] if params is None else None
         if geom_type is None:
-            raise ValueError("geom_type is required with params when the environment's shape is not fixed")
+            raise ConfigError("geom_type is required with params when the environment's shape is not fixed")
         if geom_type not in scene.SHAPES:
-            raise ValueError(f"geom_type must be one of {scene.SHAPES}, got {geom_type!r}")
+            raise ConfigError(f"geom_type must be one of {scene.SHAPES}, got {geom_type!r}")
         if params is None:
             params = sample_params(int(self.np_random.integers(2**31 - 1)), self.config.objects, geom_type)
         else:
@@ -253,7 +254,7 @@ class CpuPushEnv:
             raise RuntimeError("call reset() before step()")
         action = np.asarray(action, dtype=np.float64)
         if action.shape != (3,):
-            raise ValueError(f"action must have shape (3,) = (a_x, a_y, a_s), got {action.shape}")
+            raise ConfigError(f"action must have shape (3,) = (a_x, a_y, a_s), got {action.shape}")
         if not self._warned_clip and np.any(np.abs(action[np.isfinite(action)]) > 1.0 + 1e-6):
             # Clipping silently hid a common mistake: a decoded substep count (NumpyPolicy.act) passed as a_s.
             self._warned_clip = True
@@ -348,10 +349,10 @@ class CpuPushEnv:
         """RGB frame (H, W, 3) uint8 of the current state from `camera` ("top" or "under_table"), for videos
         and for the simulated camera of `export.deploy`. `size` = (height, width) <= (480, 640)."""
         if camera not in CAMERAS:
-            raise ValueError(f"camera must be one of {CAMERAS}, got {camera!r}")
+            raise ConfigError(f"camera must be one of {CAMERAS}, got {camera!r}")
         h, w = (int(v) for v in size)
         if not (1 <= h <= MAX_RENDER_SIZE[0] and 1 <= w <= MAX_RENDER_SIZE[1]):
-            raise ValueError(f"size must be (height, width) within {MAX_RENDER_SIZE}, got {size!r}")
+            raise ConfigError(f"size must be (height, width) within {MAX_RENDER_SIZE}, got {size!r}")
         if self.params is None:
             raise RuntimeError("call reset() before render_rgb()")
         return self._render(self._s.data.qpos, camera, h, w)

@@ -37,6 +37,7 @@ from export.camera import MaskPipeline
 from export.cpu_env import CpuPushEnv, flange_target
 from mjx_push import scene
 from mjx_push.env import EnvConfig
+from mjx_push.errors import ConfigError
 
 _DEFAULTS = EnvConfig()
 DEFAULT_WORKSPACE = (_DEFAULTS.workspace_x, _DEFAULTS.workspace_y)  # ((x_low, x_high), (y_low, y_high))
@@ -77,9 +78,9 @@ def _check_workspace(workspace) -> tuple[tuple[float, float], tuple[float, float
     try:
         (x0, x1), (y0, y1) = workspace
     except (TypeError, ValueError):
-        raise ValueError(f"workspace must be ((x_low, x_high), (y_low, y_high)), got {workspace!r}") from None
+        raise ConfigError(f"workspace must be ((x_low, x_high), (y_low, y_high)), got {workspace!r}") from None
     if not (x0 < x1 and y0 < y1):
-        raise ValueError(f"workspace must have low < high on both axes, got {workspace!r}")
+        raise ConfigError(f"workspace must have low < high on both axes, got {workspace!r}")
     return (float(x0), float(x1)), (float(y0), float(y1))
 
 
@@ -87,7 +88,7 @@ def _check_mask(name: str, mask) -> np.ndarray:
     mask = np.asarray(mask)
     n = scene.IMAGE_SIZE
     if mask.shape != (n, n):
-        raise ValueError(f"{name} must have shape ({n}, {n}), got {mask.shape}")
+        raise ConfigError(f"{name} must have shape ({n}, {n}), got {mask.shape}")
     return mask.astype(bool)
 
 
@@ -107,16 +108,16 @@ def run_episode(policy: Policy, robot: Robot, camera: Camera, pipeline: MaskPipe
     (T+1, 64, 64), "actions" (T, 3) as (a_x, a_y, a_s_substeps) after sanitising, "targets" (T, 3),
     "goal_mask", "bad_actions" and "steps" (T, the number of steps run)."""
     if not isinstance(pipeline, MaskPipeline):
-        raise ValueError(f"pipeline must be an export.camera.MaskPipeline, got {type(pipeline).__name__}")
+        raise ConfigError(f"pipeline must be an export.camera.MaskPipeline, got {type(pipeline).__name__}")
     goal_mask = _check_mask("goal_mask", goal_mask)
     if not isinstance(steps, (int, np.integer)) or steps < 1:
-        raise ValueError(f"steps must be an integer >= 1, got {steps!r}")
+        raise ConfigError(f"steps must be an integer >= 1, got {steps!r}")
     if not action_scale > 0:
-        raise ValueError(f"action_scale must be > 0, got {action_scale!r}")
+        raise ConfigError(f"action_scale must be > 0, got {action_scale!r}")
     wx, wy = _check_workspace(workspace)
     home_z = float(scene.home_flange_pos()[2] if home_z is None else home_z)
     if not isinstance(max_wait_ms, (int, np.integer)) or max_wait_ms < 1:
-        raise ValueError(f"max_wait_ms must be an integer >= 1, got {max_wait_ms!r}")
+        raise ConfigError(f"max_wait_ms must be an integer >= 1, got {max_wait_ms!r}")
 
     policy.reset()
     ee_hist, masks, actions, targets = [], [], [], []
@@ -130,7 +131,7 @@ def run_episode(policy: Policy, robot: Robot, camera: Camera, pipeline: MaskPipe
         bad_actions += int(not finite.all())
         a_xy = np.clip(np.where(finite, a_xy, 0.0), -1.0, 1.0)
         if isinstance(a_s, (bool, np.bool_)) or not float(a_s).is_integer() or not 1 <= a_s <= max_wait_ms:
-            raise ValueError(f"policy a_s_substeps must be an integer in [1, {max_wait_ms}], got {a_s!r} at step {t}")
+            raise ConfigError(f"policy a_s_substeps must be an integer in [1, {max_wait_ms}], got {a_s!r} at step {t}")
         a_s = int(a_s)
         target = flange_target(ee, a_xy, action_scale, wx, wy, home_z)
         robot.move_to(target)
@@ -170,12 +171,12 @@ class SimRobot:
     def move_to(self, target: np.ndarray) -> None:
         target = np.asarray(target, np.float64)
         if target.shape != (3,) or not np.all(np.isfinite(target)):
-            raise ValueError(f"target must be a finite (3,) flange position, got {target!r}")
+            raise ConfigError(f"target must be a finite (3,) flange position, got {target!r}")
         self.env.target = target.copy()
 
     def wait_ms(self, n: int) -> None:
         if int(n) < 0:
-            raise ValueError(f"n must be >= 0 milliseconds, got {n!r}")
+            raise ConfigError(f"n must be >= 0 milliseconds, got {n!r}")
         self.env.run_substeps(int(n))
 
     def home(self) -> None:

@@ -48,6 +48,7 @@ from export import ENV_ID
 from export.cpu_env import CAMERAS, MAX_RENDER_SIZE, CpuPushEnv
 from mjx_push import scene
 from mjx_push.env import EnvConfig
+from mjx_push.errors import ConfigError
 
 N_PIX = scene.IMAGE_SIZE * scene.IMAGE_SIZE
 EE_BOUND = 1.0  # |flange x|, |flange y| < 1 m: the Panda's reach is 0.855 m
@@ -63,7 +64,7 @@ def split_observation(observation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     observation = np.asarray(observation)
     n = scene.IMAGE_SIZE
     if observation.shape[-1] != 2 + N_PIX:
-        raise ValueError(f"expected 'mask' observations of length {2 + N_PIX}, got {observation.shape[-1]}")
+        raise ConfigError(f"expected 'mask' observations of length {2 + N_PIX}, got {observation.shape[-1]}")
     return observation[..., :2], observation[..., 2:].reshape(observation.shape[:-1] + (n, n)) > 0.5
 
 
@@ -88,17 +89,17 @@ class MjxPushGymEnv(gymnasium.Env):
                  observation: str = "latent", encoder: str | Path | None = None, render_mode: str | None = None,
                  render_size: tuple[int, int] = (240, 320), render_camera: str = "top"):
         if observation not in OBSERVATIONS:
-            raise ValueError(f"observation must be one of {OBSERVATIONS}, got {observation!r}")
+            raise ConfigError(f"observation must be one of {OBSERVATIONS}, got {observation!r}")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
+            raise ConfigError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
         self.render_size = tuple(render_size)
         if not (len(self.render_size) == 2 and 1 <= self.render_size[0] <= MAX_RENDER_SIZE[0]
                 and 1 <= self.render_size[1] <= MAX_RENDER_SIZE[1]):
-            raise ValueError(f"render_size must be (height, width) within {MAX_RENDER_SIZE}, got {render_size!r}")
+            raise ConfigError(f"render_size must be (height, width) within {MAX_RENDER_SIZE}, got {render_size!r}")
         if render_camera not in CAMERAS:
-            raise ValueError(f"render_camera must be one of {CAMERAS}, got {render_camera!r}")
+            raise ConfigError(f"render_camera must be one of {CAMERAS}, got {render_camera!r}")
         if encoder is not None and not Path(encoder).is_file():
-            raise ValueError(f"encoder: no such file {encoder}")
+            raise ConfigError(f"encoder: no such file {encoder}")
         self.sim = CpuPushEnv(config or EnvConfig(), geom_type=geom_type, mask_source=mask_source)
         self.config = self.sim.config
         self.observation_mode = observation
@@ -130,7 +131,7 @@ class MjxPushGymEnv(gymnasium.Env):
         options = options or {}
         unknown = set(options) - {"params", "geom_type"}
         if unknown:
-            raise ValueError(f"options accepts 'params' and 'geom_type', got {sorted(unknown)}")
+            raise ConfigError(f"options accepts 'params' and 'geom_type', got {sorted(unknown)}")
         self.sim.np_random = self.np_random  # one generator: gymnasium's seeding drives every draw
         obs = self.sim.reset(params=options.get("params"), geom_type=options.get("geom_type"))
         out = self._obs(obs)
@@ -150,7 +151,7 @@ class MjxPushGymEnv(gymnasium.Env):
         ag = np.asarray(achieved_goal, np.float64)
         dg = np.asarray(desired_goal, np.float64)
         if ag.shape[-1:] != (2,) or dg.shape[-1:] != (2,):
-            raise ValueError(f"goals are xy positions of shape (..., 2), got {ag.shape} and {dg.shape}")
+            raise ConfigError(f"goals are xy positions of shape (..., 2), got {ag.shape} and {dg.shape}")
         dist = np.linalg.norm(ag - dg, axis=-1)
         return (dist < self.config.success_tau).astype(np.float32) - np.float32(1.0)
 

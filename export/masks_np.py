@@ -15,6 +15,7 @@ import math
 import numpy as np
 
 from mjx_push import scene
+from mjx_push.errors import ConfigError
 
 IMAGE_SIZE = scene.IMAGE_SIZE
 FOCAL = (IMAGE_SIZE / 2) / math.tan(math.radians(scene.CAMERA_FOVY) / 2)  # pixels
@@ -104,4 +105,4 @@ def object_mask(geom_type: str, size, xy, yaw, z_center) -> np.ndarray:
     if geom_type == "cylinder":
         half_h = size[..., 1]
         return cylinder_mask(xy, size[..., 0], z_center - half_h, 2 * half_h)
-    raise ValueError(f"geom_type must be one of {scene.SHAPES}, got {geom_type!r}")
+    raise ConfigError(f"geom_type must be one of {scene.SHAPES}, got {geom_type!r}")

@@ -10,12 +10,13 @@ import math
 import numpy as np
 
 from train.evaluate import DISTANCE_METRICS, METRICS, summarize as summarize_arrays
+from mjx_push.errors import ConfigError
 
 
 def summarize(episodes: list[dict]) -> dict:
     """{metric: {"mean", "sem", "n"}} for the paper's METRICS and the DISTANCE_METRICS the episodes hold."""
     if not episodes:
-        raise ValueError("summarize needs at least one episode")
+        raise ConfigError("summarize needs at least one episode")
     per = {}
     for key in METRICS + DISTANCE_METRICS:
         if key in DISTANCE_METRICS and not all(key in ep for ep in episodes):
@@ -23,10 +24,10 @@ def summarize(episodes: list[dict]) -> dict:
         values = []
         for i, ep in enumerate(episodes):
             if key not in ep:
-                raise ValueError(f"episode {i} has no {key!r} entry (needs {list(METRICS)})")
+                raise ConfigError(f"episode {i} has no {key!r} entry (needs {list(METRICS)})")
             v = float(ep[key])
             if not math.isfinite(v):
-                raise ValueError(f"episode {i} has a non-finite {key!r}: {ep[key]!r}")
+                raise ConfigError(f"episode {i} has a non-finite {key!r}: {ep[key]!r}")
             values.append(v)
         per[key] = np.asarray(values)
     return summarize_arrays(per)

@@ -27,6 +27,7 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 from export.policy_file import PolicyFile, load_npz
+from mjx_push.errors import ConfigError
 
 F32 = np.float32
 
@@ -103,7 +104,7 @@ class NumpyPolicy:
         mask = np.asarray(mask)
         n = self.image_size
         if mask.shape[-2:] != (n, n):
-            raise ValueError(f"mask must have shape (..., {n}, {n}), got {mask.shape}")
+            raise ConfigError(f"mask must have shape (..., {n}, {n}), got {mask.shape}")
         lead = mask.shape[:-2]
         h = mask.reshape((-1, n, n, 1)).astype(F32)
         for weight, bias in self._convs:
@@ -152,10 +153,10 @@ class NumpyPolicy:
         ee_xy = np.asarray(ee_xy, F32).reshape(-1)
         z_obj, z_goal = np.asarray(z_obj, F32).reshape(-1), np.asarray(z_goal, F32).reshape(-1)
         if ee_xy.shape != (2,) or not np.all(np.isfinite(ee_xy)):
-            raise ValueError(f"ee_xy must be two finite numbers (metres), got {ee_xy!r}")
+            raise ConfigError(f"ee_xy must be two finite numbers (metres), got {ee_xy!r}")
         latent = self.obs_dim // 2 - 1
         if z_obj.shape != (latent,) or z_goal.shape != (latent,):
-            raise ValueError(f"z_obj and z_goal must have shape ({latent},), got {z_obj.shape} and {z_goal.shape}")
+            raise ConfigError(f"z_obj and z_goal must have shape ({latent},), got {z_obj.shape} and {z_goal.shape}")
         if self._norm is not None:
             clip, stats = self._norm
             norm = lambda g, x: np.clip((x - stats[g][0]) / stats[g][1], -clip, clip)  # noqa: E731
@@ -175,7 +176,7 @@ class NumpyPolicy:
         mask = np.asarray(mask)
         n = self.image_size
         if mask.shape != (n, n):
-            raise ValueError(f"{name} must have shape ({n}, {n}), got {mask.shape}")
+            raise ConfigError(f"{name} must have shape ({n}, {n}), got {mask.shape}")
         return mask.astype(bool)
 
     def act_raw(self, object_mask: np.ndarray, goal_mask: np.ndarray, ee_xy: np.ndarray) -> np.ndarray:

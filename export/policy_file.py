@@ -41,6 +41,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from mjx_push.errors import ConfigError
 
 FORMAT = "mjx-push-numpy-policy"
 FORMAT_VERSION = 1
@@ -76,7 +77,7 @@ class PolicyFile:
 # --- shapes the metadata implies ---------------------------------------------------------------------
 def _pos_int(meta_field: str, v) -> int:
     if not isinstance(v, int) or isinstance(v, bool) or v <= 0:
-        raise ValueError(f"metadata field {meta_field} must be a positive integer, got {v!r}")
+        raise ConfigError(f"metadata field {meta_field} must be a positive integer, got {v!r}")
     return v
 
 
@@ -96,13 +97,13 @@ def expected_shapes(meta: dict) -> dict[str, tuple[int, ...]]:
     try:
         return _expected_shapes(meta)
     except (KeyError, TypeError, IndexError) as e:
-        raise ValueError(f"metadata is missing or has a malformed field ({type(e).__name__}: {e})") from None
+        raise ConfigError(f"metadata is missing or has a malformed field ({type(e).__name__}: {e})") from None
 
 
 def _expected_shapes(meta: dict) -> dict[str, tuple[int, ...]]:
     enc, agent = meta["encoder"], meta["agent"]
     if agent["kind"] not in AGENT_KINDS:
-        raise ValueError(f"metadata field agent.kind must be one of {AGENT_KINDS}, got {agent['kind']!r}")
+        raise ConfigError(f"metadata field agent.kind must be one of {AGENT_KINDS}, got {agent['kind']!r}")
     shapes: dict[str, tuple[int, ...]] = {}
     k, stride = _pos_int("encoder.kernel", enc["kernel"]), _pos_int("encoder.stride", enc["stride"])
     n = _pos_int("camera.image_size", meta["camera"]["image_size"])
@@ -113,7 +114,7 @@ def _expected_shapes(meta: dict) -> dict[str, tuple[int, ...]]:
         shapes[f"encoder/Conv_{i}/bias"] = (c,)
         n = (n - k) // stride + 1  # VALID padding
         if n < 1:
-            raise ValueError("metadata encoder convolutions shrink the image to nothing")
+            raise ConfigError("metadata encoder convolutions shrink the image to nothing")
         c_in = c
     dense, latent = _pos_int("encoder.dense", enc["dense"]), _pos_int("encoder.latent_dim", enc["latent_dim"])
     shapes["encoder/Dense_0/kernel"] = (n * n * c_in, dense)
@@ -123,7 +124,7 @@ def _expected_shapes(meta: dict) -> dict[str, tuple[int, ...]]:
 
     obs_dim = _pos_int("observation.obs_dim", meta["observation"]["obs_dim"])
     if obs_dim != 2 + 2 * latent:
-        raise ValueError(f"metadata observation.obs_dim must be 2 + 2 * latent_dim = {2 + 2 * latent}, got {obs_dim}")
+        raise ConfigError(f"metadata observation.obs_dim must be 2 + 2 * latent_dim = {2 + 2 * latent}, got {obs_dim}")
     if agent["kind"] in ("ugru", "egru"):
         h = _pos_int("agent.gru_hidden", agent["gru_hidden"])
         for g in GRU_GATES_IN:
@@ -143,7 +144,7 @@ def _expected_shapes(meta: dict) -> dict[str, tuple[int, ...]]:
         shapes[f"actor/mlp/Dense_{i}/bias"] = (h,)
         width = h
     if not agent["hidden"]:
-        raise ValueError("metadata field agent.hidden must not be empty")
+        raise ConfigError("metadata field agent.hidden must not be empty")
     a = _pos_int("action.dim", meta["action"]["dim"])
     for head in ("mean_head", "log_std_head"):
         shapes[f"actor/{head}/kernel"] = (width, a)
@@ -156,61 +157,61 @@ def load_npz(path: Path | str) -> PolicyFile:
     """Read and validate a policy file written by `export_policy`."""
     path = Path(path)
     if not path.is_file():
-        raise ValueError(f"policy file not found: {path}")
+        raise ConfigError(f"policy file not found: {path}")
     if not zipfile.is_zipfile(path):
-        raise ValueError(f"policy file {path} is not an .npz (zip) archive: truncated, corrupt or another format")
+        raise ConfigError(f"policy file {path} is not an .npz (zip) archive: truncated, corrupt or another format")
     try:
         with np.load(path, allow_pickle=False) as z:
             arrays = {name: z[name] for name in z.files}
     except Exception as e:  # zipfile, zlib and numpy raise unrelated types on damaged members
-        raise ValueError(f"policy file {path} is corrupt (an array cannot be read: {type(e).__name__}: {e})") from None
+        raise ConfigError(f"policy file {path} is corrupt (an array cannot be read: {type(e).__name__}: {e})") from None
     meta = _read_metadata(path, arrays.pop(METADATA_KEY, None))
     if _encoder_source(meta, path) == "package":
         if any(name.startswith("encoder/") for name in arrays):
-            raise ValueError(f"policy file {path} references the package's encoder but also holds encoder arrays")
+            raise ConfigError(f"policy file {path} references the package's encoder but also holds encoder arrays")
         arrays.update(package_encoder_arrays(meta["encoder"]["weights"].get("sha256"), path))
     try:
         want = expected_shapes(meta)
     except ValueError as e:
-        raise ValueError(f"policy file {path}: {e}") from None
+        raise ConfigError(f"policy file {path}: {e}") from None
     missing = sorted(set(want) - set(arrays))
     if missing:
-        raise ValueError(f"policy file {path} lacks {len(missing)} array(s) its {meta['agent']['kind']} metadata "
+        raise ConfigError(f"policy file {path} lacks {len(missing)} array(s) its {meta['agent']['kind']} metadata "
                          f"requires: {missing[:5]}")
     unexpected = sorted(set(arrays) - set(want))
     if unexpected:
-        raise ValueError(f"policy file {path} has arrays its metadata does not describe: {unexpected[:5]}")
+        raise ConfigError(f"policy file {path} has arrays its metadata does not describe: {unexpected[:5]}")
     for name, shape in want.items():
         a = arrays[name]
         if a.shape != shape:
-            raise ValueError(f"policy file {path}: array {name!r} has shape {a.shape}, the metadata implies {shape}")
+            raise ConfigError(f"policy file {path}: array {name!r} has shape {a.shape}, the metadata implies {shape}")
         if a.dtype != np.float32:
-            raise ValueError(f"policy file {path}: array {name!r} has dtype {a.dtype}, expected float32")
+            raise ConfigError(f"policy file {path}: array {name!r} has dtype {a.dtype}, expected float32")
         if not np.all(np.isfinite(a)):
-            raise ValueError(f"policy file {path}: array {name!r} holds non-finite values")
+            raise ConfigError(f"policy file {path}: array {name!r} holds non-finite values")
         if name.startswith("actor/norm/") and name.endswith("_std") and not np.all(a > 0):
-            raise ValueError(f"policy file {path}: normalisation {name!r} must be positive")
+            raise ConfigError(f"policy file {path}: normalisation {name!r} must be positive")
     clip = (meta["agent"].get("obs_norm") or {}).get("clip", 1.0)
     if not (isinstance(clip, (int, float)) and math.isfinite(clip) and clip > 0):
-        raise ValueError(f"policy file {path}: metadata field agent.obs_norm.clip must be a positive number, got {clip!r}")
+        raise ConfigError(f"policy file {path}: metadata field agent.obs_norm.clip must be a positive number, got {clip!r}")
     return PolicyFile(path, meta, arrays)
 
 
 def _read_metadata(path: Path, raw: np.ndarray | None) -> dict:
     if raw is None:
-        raise ValueError(f"policy file {path} has no {METADATA_KEY!r} record: not an mjx-push policy export")
+        raise ConfigError(f"policy file {path} has no {METADATA_KEY!r} record: not an mjx-push policy export")
     if raw.dtype != np.uint8 or raw.ndim != 1:
-        raise ValueError(f"policy file {path}: {METADATA_KEY!r} must be a 1-D uint8 array of JSON bytes")
+        raise ConfigError(f"policy file {path}: {METADATA_KEY!r} must be a 1-D uint8 array of JSON bytes")
     try:
         meta = json.loads(raw.tobytes().decode("utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise ValueError(f"policy file {path}: the metadata record is not valid JSON ({e})") from None
+        raise ConfigError(f"policy file {path}: the metadata record is not valid JSON ({e})") from None
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         got = meta.get("format") if isinstance(meta, dict) else type(meta).__name__
-        raise ValueError(f"policy file {path} is not an mjx-push NumPy policy (format {got!r}, expected {FORMAT!r})")
+        raise ConfigError(f"policy file {path} is not an mjx-push NumPy policy (format {got!r}, expected {FORMAT!r})")
     version = meta.get("format_version")
     if version != FORMAT_VERSION:
-        raise ValueError(f"policy file {path} has format version {version!r}; this reader understands version "
+        raise ConfigError(f"policy file {path} has format version {version!r}; this reader understands version "
                          f"{FORMAT_VERSION} only (re-export the policy with a matching mjx-push)")
     return meta
 
@@ -219,7 +220,7 @@ def _encoder_source(meta: dict, path: Path) -> str:
     weights = (meta.get("encoder") or {}).get("weights") or {"source": "embed"}
     source = weights.get("source") if isinstance(weights, dict) else None
     if source not in ENCODER_SOURCES:
-        raise ValueError(f"policy file {path}: metadata field encoder.weights.source must be one of "
+        raise ConfigError(f"policy file {path}: metadata field encoder.weights.source must be one of "
                          f"{ENCODER_SOURCES}, got {source!r}")
     return source
 
@@ -229,7 +230,7 @@ def package_encoder_path() -> Path:
     """The encoder weights mjx_push ships (found without importing mjx_push, which starts JAX)."""
     spec = importlib.util.find_spec("mjx_push")
     if spec is None or not spec.submodule_search_locations:
-        raise ValueError("the mjx_push package is not installed: a policy file that references its encoder "
+        raise ConfigError("the mjx_push package is not installed: a policy file that references its encoder "
                          "needs it (or re-export the policy with the encoder embedded)")
     return Path(list(spec.submodule_search_locations)[0]) / "assets" / "encoder.msgpack"
 
@@ -245,7 +246,7 @@ def _read_flax_msgpack(blob: bytes) -> dict:
 
     def ext(code, data):
         if code != 1:
-            raise ValueError(f"unsupported msgpack extension type {code}")
+            raise ConfigError(f"unsupported msgpack extension type {code}")
         shape, dtype, buf = msgpack.unpackb(data, raw=True)
         return np.frombuffer(buf, dtype=np.dtype(dtype.decode())).reshape(shape)
 
@@ -259,7 +260,7 @@ def package_encoder_arrays(sha256: str | None, path: Path | str = "policy") -> d
     blob = enc_path.read_bytes()
     have = hashlib.sha256(blob).hexdigest()
     if sha256 != have:
-        raise ValueError(f"policy file {path} was exported against the package encoder with sha256 {sha256}, "
+        raise ConfigError(f"policy file {path} was exported against the package encoder with sha256 {sha256}, "
                          f"but this mjx-push ships {have} ({enc_path}): use the mjx-push version it was "
                          "exported with, or re-export it with the encoder embedded")
     tree = _read_flax_msgpack(blob)
@@ -408,9 +409,9 @@ def load_as_policy(path: Path | str):
     try:
         config = config_from_dict(pf.metadata["run_config"])
     except (KeyError, ValueError) as e:
-        raise ValueError(f"policy file {pf.path}: its run configuration does not fit this mjx-push ({e})") from None
+        raise ConfigError(f"policy file {pf.path}: its run configuration does not fit this mjx-push ({e})") from None
     if config.agent != pf.kind:
-        raise ValueError(f"policy file {pf.path}: run configuration agent {config.agent!r} != metadata {pf.kind!r}")
+        raise ConfigError(f"policy file {pf.path}: run configuration agent {config.agent!r} != metadata {pf.kind!r}")
     encoder = _unflatten(pf.arrays, "encoder")
     dense, latent = pf.metadata["encoder"]["dense"], pf.metadata["encoder"]["latent_dim"]
     encoder["logvar"] = {"kernel": np.zeros((dense, latent), np.float32), "bias": np.zeros(latent, np.float32)}
@@ -428,9 +429,9 @@ def export_policy(policy, out: Path | str, encoder: str = "embed", provenance: d
     policy must have been trained with that encoder: checked, array by array)."""
     out = Path(out)
     if out.suffix != ".npz":
-        raise ValueError(f"out must be an .npz path, got {out}")
+        raise ConfigError(f"out must be an .npz path, got {out}")
     if encoder not in ENCODER_SOURCES:
-        raise ValueError(f"encoder must be one of {ENCODER_SOURCES}, got {encoder!r}")
+        raise ConfigError(f"encoder must be one of {ENCODER_SOURCES}, got {encoder!r}")
     meta = build_metadata(policy, provenance)
     arrays = _flatten(policy.actor_params["params"], "actor")
     if "norm" in policy.actor_params:
@@ -440,14 +441,14 @@ def export_policy(policy, out: Path | str, encoder: str = "embed", provenance: d
     want = expected_shapes(meta)
     got = {k: v.shape for k, v in arrays.items()}
     if got != want:  # the networks changed without this format following: fail here, not in a reader
-        raise ValueError(f"policy parameters do not match export format {FORMAT_VERSION}: "
+        raise ConfigError(f"policy parameters do not match export format {FORMAT_VERSION}: "
                          f"missing {sorted(set(want) - set(got))[:4]}, unexpected {sorted(set(got) - set(want))[:4]}, "
                          f"wrong shapes {[k for k in set(want) & set(got) if want[k] != got[k]][:4]}")
     if encoder == "package":
         sha = package_encoder_sha256()
         shipped = package_encoder_arrays(sha)
         if any(not np.array_equal(shipped[k], v) for k, v in encoder_arrays.items()):
-            raise ValueError("encoder='package': this policy's encoder is not the one the package ships; "
+            raise ConfigError("encoder='package': this policy's encoder is not the one the package ships; "
                              "export it with the encoder embedded")
         meta["encoder"]["weights"] = {"source": "package", "sha256": sha}
         arrays = {k: v for k, v in arrays.items() if k not in encoder_arrays}

@@ -7,6 +7,7 @@ a few hundred kB. Each file's metadata names the run, budget, seed and commit th
 from __future__ import annotations
 
 from pathlib import Path
+from mjx_push.errors import ConfigError
 
 PREFIX = "pretrained:"
 DIRECTORY = Path(__file__).parent / "pretrained_policies"
@@ -31,5 +32,5 @@ def resolve(policy, directory: Path | None = None) -> Path:
     ships = available(directory)
     if name not in ships:
         listed = ", ".join(PREFIX + n for n in ships) or "none"
-        raise ValueError(f"unknown pretrained policy {str(policy)!r}: this mjx-push ships {listed}")
+        raise ConfigError(f"unknown pretrained policy {str(policy)!r}: this mjx-push ships {listed}")
     return ships[name]

@@ -22,6 +22,7 @@ import numpy as np
 
 from export.numpy_policy import decode_substeps
 from export.policy_file import PolicyFile, feature_dim, load_npz
+from mjx_push.errors import ConfigError
 
 INSTALL_HINT = 'PyTorch is not installed; install the optional extra with `pip install -e ".[torch]"` (torch==2.13.0)'
 
@@ -158,7 +159,7 @@ class TorchPolicy:
         mask = np.asarray(mask)
         n = self.net.image_size
         if mask.shape != (n, n):
-            raise ValueError(f"{name} must have shape ({n}, {n}), got {mask.shape}")
+            raise ConfigError(f"{name} must have shape ({n}, {n}), got {mask.shape}")
         return mask.astype(bool)
 
     def encode(self, mask: np.ndarray) -> np.ndarray:
@@ -175,7 +176,7 @@ class TorchPolicy:
         goal_mask = self._check_mask("goal_mask", goal_mask)
         ee = np.asarray(ee_xy, np.float32).reshape(-1)
         if ee.shape != (2,) or not np.all(np.isfinite(ee)):
-            raise ValueError(f"ee_xy must be two finite numbers (metres), got {ee_xy!r}")
+            raise ConfigError(f"ee_xy must be two finite numbers (metres), got {ee_xy!r}")
         if self._z_goal is None or not np.array_equal(goal_mask, self._goal_mask):
             self._goal_mask = goal_mask.copy()
             self._z_goal = torch.from_numpy(self.encode(goal_mask)[None])

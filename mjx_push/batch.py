@@ -29,6 +29,7 @@ from flax import struct
 
 from mjx_push import devices, objects
 from mjx_push.env import EnvConfig, PushEnv
+from mjx_push.errors import ConfigError
 
 
 @struct.dataclass
@@ -69,10 +70,10 @@ class PushBatch:
 
     def __init__(self, config: EnvConfig = EnvConfig(), num_envs: int = 8, max_devices: int | None = None):
         if not isinstance(num_envs, int) or num_envs < 1:
-            raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
+            raise ConfigError(f"num_envs must be a positive integer, got {num_envs!r}")
         shapes = config.objects.shapes()
         if len(shapes) == 2 and num_envs < 2:
-            raise ValueError("shape filter 'any' needs num_envs >= 2 (one group per shape); pick a shape or more envs")
+            raise ConfigError("shape filter 'any' needs num_envs >= 2 (one group per shape); pick a shape or more envs")
         self.config = config
         self.num_envs = num_envs
         if len(shapes) == 2:
@@ -115,7 +116,7 @@ class PushBatch:
     def step(self, state: BatchState, actions: jax.Array) -> BatchState:
         actions = jnp.asarray(actions)
         if actions.shape != (self.num_envs, 3):
-            raise ValueError(f"actions must have shape ({self.num_envs}, 3), got {actions.shape}")
+            raise ConfigError(f"actions must have shape ({self.num_envs}, 3), got {actions.shape}")
         parts = self._split(actions)
         return BatchState(tuple(self._run(env.step, s, a) for env, s, a in zip(self.envs, state.groups, parts)))
 
@@ -124,7 +125,7 @@ class PushBatch:
         """Start a new env step with `actions` in the environments where `mask` [N] is True."""
         actions = jnp.asarray(actions)
         if actions.shape != (self.num_envs, 3):
-            raise ValueError(f"actions must have shape ({self.num_envs}, 3), got {actions.shape}")
+            raise ConfigError(f"actions must have shape ({self.num_envs}, 3), got {actions.shape}")
         return self._masked(lambda env, s, a: env.begin_step(s, a), state, mask, actions)
 
     def advance(self, state: BatchState, max_substeps: int) -> BatchState:

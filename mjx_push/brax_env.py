@@ -45,6 +45,7 @@ from brax.envs.base import Env, State
 from mjx_push import encoder as enc
 from mjx_push import scene
 from mjx_push.env import EnvConfig, PushEnv
+from mjx_push.errors import ConfigError
 
 OBSERVATIONS = ("latent", "state", "mask")
 REWARDS = ("sparse", "dense")
@@ -66,9 +67,9 @@ class BraxPushEnv(Env):
     def __init__(self, config: EnvConfig = EnvConfig(), geom_type: str = "box", observation: str = "latent",
                  reward: str = "sparse", encoder_params=None):
         if observation not in OBSERVATIONS:
-            raise ValueError(f"observation must be one of {OBSERVATIONS}, got {observation!r}")
+            raise ConfigError(f"observation must be one of {OBSERVATIONS}, got {observation!r}")
         if reward not in REWARDS:
-            raise ValueError(f"reward must be one of {REWARDS}, got {reward!r}")
+            raise ConfigError(f"reward must be one of {REWARDS}, got {reward!r}")
         self.env = PushEnv(config, geom_type)
         self.config = config
         self.observation = observation

@@ -21,6 +21,7 @@ import jax.numpy as jnp
 from mujoco import mjx
 
 from mjx_push import scene
+from mjx_push.errors import ConfigError
 
 C_AXIS = jnp.array([0.0, 0.0, -1.0])
 
@@ -40,17 +41,17 @@ class ControllerConfig:
 
     def __post_init__(self):
         if not self.damping > 0:
-            raise ValueError(f"controller.damping must be > 0, got {self.damping}")
+            raise ConfigError(f"controller.damping must be > 0, got {self.damping}")
         if not self.gain > 0:
-            raise ValueError(f"controller.gain must be > 0, got {self.gain}")
+            raise ConfigError(f"controller.gain must be > 0, got {self.gain}")
         if self.tilt_law not in ("axis", "dot"):
-            raise ValueError(f"controller.tilt_law must be 'axis' or 'dot', got {self.tilt_law!r}")
+            raise ConfigError(f"controller.tilt_law must be 'axis' or 'dot', got {self.tilt_law!r}")
         if not self.hold_gain > 0:
-            raise ValueError(f"controller.hold_gain must be > 0, got {self.hold_gain}")
+            raise ConfigError(f"controller.hold_gain must be > 0, got {self.hold_gain}")
         if not self.tilt_weight > 0:
-            raise ValueError(f"controller.tilt_weight must be > 0, got {self.tilt_weight}")
+            raise ConfigError(f"controller.tilt_weight must be > 0, got {self.tilt_weight}")
         if not 0 < self.safety_scale <= 1:
-            raise ValueError(f"controller.safety_scale must be in (0, 1], got {self.safety_scale}")
+            raise ConfigError(f"controller.safety_scale must be in (0, 1], got {self.safety_scale}")
 
 
 def flange_pose(d: mjx.Data, ids: scene.SceneIds) -> tuple[jax.Array, jax.Array]:

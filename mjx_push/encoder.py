@@ -23,6 +23,7 @@ import jax.numpy as jnp
 from flax import serialization
 
 from mjx_push import masks, objects, scene
+from mjx_push.errors import ConfigError
 
 LATENT_DIM = 6
 CHANNELS = (32, 64, 128, 256)
@@ -155,21 +156,21 @@ def load(path: Path | None = None):
     differently shaped file raises ValueError naming the file and the problem."""
     path = Path(path) if path is not None else PRETRAINED
     if not path.is_file():
-        raise ValueError(f"encoder weights not found: {path} (train them with `mjx-push train-encoder`)")
+        raise ConfigError(f"encoder weights not found: {path} (train them with `mjx-push train-encoder`)")
     try:
         raw = serialization.msgpack_restore(path.read_bytes())
     except Exception as e:  # msgpack raises several unrelated types on garbage
-        raise ValueError(f"encoder weights {path} are corrupt or not a msgpack file: {e}") from None
+        raise ConfigError(f"encoder weights {path} are corrupt or not a msgpack file: {e}") from None
     template = _template()
     want = {"/".join(str(getattr(k, "key", k)) for k in p): v.shape for p, v in jax.tree_util.tree_leaves_with_path(template)}
     try:
         got = {"/".join(str(getattr(k, "key", k)) for k in p): v.shape for p, v in jax.tree_util.tree_leaves_with_path(raw)}
     except Exception as e:
-        raise ValueError(f"encoder weights {path} have an unexpected structure: {e}") from None
+        raise ConfigError(f"encoder weights {path} have an unexpected structure: {e}") from None
     if got != want:
         missing = sorted(set(want) - set(got))
         wrong = sorted(k for k in set(want) & set(got) if want[k] != got[k])
-        raise ValueError(
+        raise ConfigError(
             f"encoder weights {path} do not match the encoder architecture: "
             f"missing {missing[:4]}, wrong shapes {[(k, got[k], want[k]) for k in wrong[:4]]}, "
             f"unexpected {sorted(set(got) - set(want))[:4]}"

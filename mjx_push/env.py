@@ -26,6 +26,7 @@ from mujoco import mjx
 from mjx_push import controller as ctl
 from mjx_push import corrections as corr
 from mjx_push import masks, objects, scene
+from mjx_push.errors import ConfigError
 
 
 @dataclass(frozen=True)
@@ -51,19 +52,19 @@ class EnvConfig:
     def __post_init__(self):
         lo, hi = self.substeps
         if not (isinstance(lo, (int, np.integer)) and isinstance(hi, (int, np.integer)) and 1 <= lo <= hi):
-            raise ValueError(f"env.substeps must be integers 1 <= low <= high, got {self.substeps!r}")
+            raise ConfigError(f"env.substeps must be integers 1 <= low <= high, got {self.substeps!r}")
         if not self.action_scale > 0:
-            raise ValueError(f"env.action_scale must be > 0, got {self.action_scale}")
+            raise ConfigError(f"env.action_scale must be > 0, got {self.action_scale}")
         if self.episode_length < 1:
-            raise ValueError(f"env.episode_length must be >= 1, got {self.episode_length}")
+            raise ConfigError(f"env.episode_length must be >= 1, got {self.episode_length}")
         if not self.success_tau > 0:
-            raise ValueError(f"env.success_tau must be > 0, got {self.success_tau}")
+            raise ConfigError(f"env.success_tau must be > 0, got {self.success_tau}")
         if self.obs_noise < 0:
-            raise ValueError(f"env.obs_noise must be >= 0, got {self.obs_noise}")
+            raise ConfigError(f"env.obs_noise must be >= 0, got {self.obs_noise}")
         for name in ("workspace_x", "workspace_y"):
             r = getattr(self, name)
             if len(r) != 2 or not r[0] < r[1]:
-                raise ValueError(f"env.{name} must be (low, high) with low < high, got {r!r}")
+                raise ConfigError(f"env.{name} must be (low, high) with low < high, got {r!r}")
 
 
 # Explicit dtypes everywhere in the state: a weakly typed scalar returned by reset but strongly typed
@@ -101,7 +102,7 @@ class PushEnv(Env):
 
     def __init__(self, config: EnvConfig = EnvConfig(), geom_type: str = "box"):
         if geom_type not in config.objects.shapes():
-            raise ValueError(
+            raise ConfigError(
                 f"geom_type {geom_type!r} is not drawn by shape filter {config.objects.shape!r}"
                 f" (it draws {config.objects.shapes()})"
             )
@@ -167,7 +168,7 @@ class PushEnv(Env):
 
     def step(self, state: State, action: jax.Array) -> State:
         if "first_pipeline_state" in state.info:  # a static check: info's keys are fixed when tracing
-            raise ValueError("PushEnv under brax's AutoResetWrapper would replay one object and end an episode "
+            raise ConfigError("PushEnv under brax's AutoResetWrapper would replay one object and end an episode "
                              "at every step (its episodes live in info, which the wrapper does not reset): "
                              "give brax's trainers mjx_push.brax_env.BraxPushEnv instead")
         return self.finish_step(self.advance(self.begin_step(state, action)))
@@ -176,7 +177,7 @@ class PushEnv(Env):
     def begin_step(self, state: State, action: jax.Array) -> State:
         action = jnp.asarray(action)
         if action.shape != (3,):
-            raise ValueError(f"action must have shape (3,) = (a_x, a_y, a_s) per environment, got {action.shape}")
+            raise ConfigError(f"action must have shape (3,) = (a_x, a_y, a_s) per environment, got {action.shape}")
         action, bad = sanitize_action(action)
         cfg = self.config
         ee = state.pipeline_state.site_xpos[self.ids.flange_site]

@@ -31,6 +31,7 @@ import jax.numpy as jnp
 
 from mjx_push import scene
 from mjx_push.env import EnvConfig
+from mjx_push.errors import ConfigError
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,11 +53,11 @@ class ExpertConfig:
     def __post_init__(self):
         for name in ("gap", "clearance", "max_move", "max_push", "hold_radius", "response_rate"):
             if not getattr(self, name) > 0:
-                raise ValueError(f"expert.{name} must be > 0, got {getattr(self, name)}")
+                raise ConfigError(f"expert.{name} must be > 0, got {getattr(self, name)}")
         if not 0 < self.settle < 1:
-            raise ValueError(f"expert.settle must be in (0, 1), got {self.settle}")
+            raise ConfigError(f"expert.settle must be in (0, 1), got {self.settle}")
         if self.push_lead < 0 or self.dead_substeps < 0:
-            raise ValueError("expert.push_lead and expert.dead_substeps must be >= 0")
+            raise ConfigError("expert.push_lead and expert.dead_substeps must be >= 0")
 
 
 def support(size: jax.Array, is_box: jax.Array, yaw: jax.Array, d: jax.Array) -> jax.Array:

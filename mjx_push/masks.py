@@ -22,6 +22,7 @@ import jax
 import jax.numpy as jnp
 
 from mjx_push import scene
+from mjx_push.errors import ConfigError
 
 FOCAL = (scene.IMAGE_SIZE / 2) / math.tan(math.radians(scene.CAMERA_FOVY) / 2)  # pixels
 
@@ -94,4 +95,4 @@ def object_mask(geom_type: str, size, xy, yaw, z_center) -> jax.Array:
     if geom_type == "cylinder":
         half_h = size[1]
         return cylinder_mask(xy, size[0], z_center - half_h, 2 * half_h)
-    raise ValueError(f"geom_type must be one of {scene.SHAPES}, got {geom_type!r}")
+    raise ConfigError(f"geom_type must be one of {scene.SHAPES}, got {geom_type!r}")

@@ -16,6 +16,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from mjx_push import scene
+from mjx_push.errors import ConfigError
 
 ShapeFilter = Literal["any", "cylinder", "cuboid", "square", "rectangular"]
 SHAPE_FILTERS = ("any", "cylinder", "cuboid", "square", "rectangular")
@@ -25,10 +26,10 @@ RECT_MIN_DIFF = 0.02  # "rectangular": length and width differ by at least this
 
 def _check_range(name: str, r, lo_bound: float = 0.0):
     if len(r) != 2:
-        raise ValueError(f"objects.{name} must be a (low, high) pair, got {r!r}")
+        raise ConfigError(f"objects.{name} must be a (low, high) pair, got {r!r}")
     lo, hi = float(r[0]), float(r[1])
     if not (lo == lo and hi == hi) or lo > hi or lo < lo_bound:
-        raise ValueError(f"objects.{name} must satisfy {lo_bound} <= low <= high, got {r!r}")
+        raise ConfigError(f"objects.{name} must satisfy {lo_bound} <= low <= high, got {r!r}")
 
 
 @dataclass(frozen=True)
@@ -52,31 +53,31 @@ class ObjectConfig:
 
     def __post_init__(self):
         if self.mode not in MODES:
-            raise ValueError(f"objects.mode must be one of {MODES}, got {self.mode!r}")
+            raise ConfigError(f"objects.mode must be one of {MODES}, got {self.mode!r}")
         if self.shape not in SHAPE_FILTERS:
-            raise ValueError(f"objects.shape must be one of {SHAPE_FILTERS}, got {self.shape!r}")
+            raise ConfigError(f"objects.shape must be one of {SHAPE_FILTERS}, got {self.shape!r}")
         _check_range("radius", self.radius, 1e-3)
         _check_range("side", self.side, 1e-3)
         _check_range("mass", self.mass, 1e-5)
         _check_range("friction", self.friction, scene.MIN_OBJECT_FRICTION)
         _check_range("torsional", self.torsional, scene.TABLE_FRICTION[1])
         if not 0.005 <= self.min_height <= 0.2:
-            raise ValueError(f"objects.min_height must be in [0.005, 0.2], got {self.min_height}")
+            raise ConfigError(f"objects.min_height must be in [0.005, 0.2], got {self.min_height}")
         for name in ("max_height_cuboid", "max_height_cylinder"):
             if getattr(self, name) < self.min_height:
-                raise ValueError(f"objects.{name} must be >= objects.min_height, got {getattr(self, name)}")
+                raise ConfigError(f"objects.{name} must be >= objects.min_height, got {getattr(self, name)}")
         if self.radius[1] > 0.08 or self.side[1] > 0.16:
-            raise ValueError("objects.radius high must be <= 0.08 and objects.side high <= 0.16 (scene limits)")
+            raise ConfigError("objects.radius high must be <= 0.08 and objects.side high <= 0.16 (scene limits)")
         if self.shape == "rectangular" and self.side[1] - self.side[0] < RECT_MIN_DIFF:
-            raise ValueError(f"objects.side must span at least {RECT_MIN_DIFF} for shape 'rectangular', got {self.side}")
+            raise ConfigError(f"objects.side must span at least {RECT_MIN_DIFF} for shape 'rectangular', got {self.side}")
         if self.mu_k <= 0:
-            raise ValueError(f"objects.mu_k must be > 0, got {self.mu_k}")
+            raise ConfigError(f"objects.mu_k must be > 0, got {self.mu_k}")
         if self.exp_scale <= 0:
-            raise ValueError(f"objects.exp_scale must be > 0, got {self.exp_scale}")
+            raise ConfigError(f"objects.exp_scale must be > 0, got {self.exp_scale}")
         if not 0 < self.pose_range <= 0.25:
-            raise ValueError(f"objects.pose_range must be in (0, 0.25], got {self.pose_range}")
+            raise ConfigError(f"objects.pose_range must be in (0, 0.25], got {self.pose_range}")
         if not 0 <= self.min_start_dist < self.pose_range * 2**0.5:
-            raise ValueError(f"objects.min_start_dist must be in [0, pose_range*sqrt(2)), got {self.min_start_dist}")
+            raise ConfigError(f"objects.min_start_dist must be in [0, pose_range*sqrt(2)), got {self.min_start_dist}")
 
     def shapes(self) -> tuple[str, ...]:
         """Geom types this filter draws: subset of scene.SHAPES."""
@@ -147,7 +148,7 @@ def _pose(key, home_xy, cfg: ObjectConfig, min_dist: float):
 def sample(key: jax.Array, cfg: ObjectConfig, geom_type: str, home_xy: jax.Array) -> ObjectParams:
     """Draw one environment's object of `geom_type` ("box" or "cylinder") under `cfg`."""
     if geom_type not in cfg.shapes():
-        raise ValueError(f"shape filter {cfg.shape!r} draws no {geom_type!r}")
+        raise ConfigError(f"shape filter {cfg.shape!r} draws no {geom_type!r}")
     ks = jax.random.split(key, 7)
     if geom_type == "box":
         length, width = _box_sides(ks[0], cfg)

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import mujoco
 import numpy as np
+from mjx_push.errors import ConfigError
 
 SHAPES = ("box", "cylinder")
 
@@ -108,13 +109,13 @@ class SolverSettings:
 
     def __post_init__(self):
         if self.iterations < 1:
-            raise ValueError(f"solver.iterations must be >= 1, got {self.iterations}")
+            raise ConfigError(f"solver.iterations must be >= 1, got {self.iterations}")
         if self.ls_iterations < 1:
-            raise ValueError(f"solver.ls_iterations must be >= 1, got {self.ls_iterations}")
+            raise ConfigError(f"solver.ls_iterations must be >= 1, got {self.ls_iterations}")
         if self.integrator not in ("Euler", "implicitfast"):
-            raise ValueError(f"solver.integrator must be 'Euler' or 'implicitfast', got {self.integrator!r}")
+            raise ConfigError(f"solver.integrator must be 'Euler' or 'implicitfast', got {self.integrator!r}")
         if self.solver not in ("Newton", "CG"):
-            raise ValueError(f"solver.solver must be 'Newton' or 'CG', got {self.solver!r}")
+            raise ConfigError(f"solver.solver must be 'Newton' or 'CG', got {self.solver!r}")
 
 
 def _v(x) -> str:
@@ -184,7 +185,7 @@ def _object_xml(shape: str) -> str:
 def build_xml(shape: str, solver: SolverSettings = SolverSettings()) -> str:
     """MJCF text of the scene with an object of `shape` ("box" or "cylinder")."""
     if shape not in SHAPES:
-        raise ValueError(f"shape must be one of {SHAPES}, got {shape!r}")
+        raise ConfigError(f"shape must be one of {SHAPES}, got {shape!r}")
     tx0, tx1 = TABLE_X
     ty0, ty1 = TABLE_Y
     table_center = ((tx0 + tx1) / 2, (ty0 + ty1) / 2, TABLE_TOP - 0.02)

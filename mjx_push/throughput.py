@@ -13,12 +13,13 @@ import numpy as np
 
 from mjx_push.batch import PushBatch
 from mjx_push.env import EnvConfig
+from mjx_push.errors import ConfigError
 
 
 def run(config: EnvConfig, num_envs: int, steps: int, seed: int, out: Path, progress=None) -> dict:
     """Step `num_envs` environments for `steps` random actions; returns throughput figures."""
     if steps < 1:
-        raise ValueError(f"steps must be >= 1, got {steps}")
+        raise ConfigError(f"steps must be >= 1, got {steps}")
     out.mkdir(parents=True, exist_ok=True)
     batch = PushBatch(config, num_envs)
     key = jax.random.PRNGKey(seed)

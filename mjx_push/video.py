@@ -15,6 +15,7 @@ import numpy as np
 
 from mjx_push import scene
 from mjx_push.renderer import new_renderer
+from mjx_push.errors import ConfigError
 
 VIEWS = ("top", "under_table")
 
@@ -80,19 +81,19 @@ def check_writable(path: Path) -> None:
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in SUFFIXES:
-        raise ValueError(f"{path} must end in .gif or .mp4")
+        raise ConfigError(f"{path} must end in .gif or .mp4")
     try:
         import imageio.v2  # noqa: F401
     except ImportError:
-        raise ValueError("writing videos needs the imageio package: pip install imageio") from None
+        raise ConfigError("writing videos needs the imageio package: pip install imageio") from None
     if suffix == ".mp4":
         try:
             import imageio_ffmpeg  # noqa: F401
         except ImportError:
-            raise ValueError(f"writing {path.name} (.mp4) needs imageio-ffmpeg: pip install 'mjx-push[mp4]' "
+            raise ConfigError(f"writing {path.name} (.mp4) needs imageio-ffmpeg: pip install 'mjx-push[mp4]' "
                              f"(or pip install imageio-ffmpeg), or write a GIF: {path.with_suffix('.gif')}") from None
     if path.is_dir():
-        raise ValueError(f"{path} is a directory, not a video file")
+        raise ConfigError(f"{path} is a directory, not a video file")
 
 
 def write(frames: list[np.ndarray], path: Path, fps: int = 5) -> Path:

@@ -17,6 +17,7 @@ set it either way in their own XLA_FLAGS.
 
 import importlib.metadata
 import os
+from mjx_push.errors import ConfigError
 
 FLAG = "--xla_cpu_use_fusion_emitters"
 DEVICE_FLAG = "--xla_force_host_platform_device_count"
@@ -33,7 +34,7 @@ def cpu_device_count() -> int:
         except ValueError:
             n = 0
         if n < 1:
-            raise ValueError(f"{DEVICES_ENV} must be a positive integer, got {value!r}")
+            raise ConfigError(f"{DEVICES_ENV} must be a positive integer, got {value!r}")
         return n
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     return max(1, min(cores, MAX_DEVICES))

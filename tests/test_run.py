@@ -238,6 +238,27 @@ def test_cli_rejects_bad_settings(capsys):
     assert "--success-tau must be" in capsys.readouterr().err
 
 
+def test_cli_shows_a_bug_with_its_traceback_and_bad_input_as_one_line(monkeypatch, capsys):
+    """Only ConfigError (the user's input) becomes exit status 2; any other error, a ValueError from a
+    bug included, propagates so its traceback shows."""
+    from mjx_push.errors import ConfigError
+    from train.cli import Demo
+
+    def bug(self):
+        raise ValueError("operands could not be broadcast together")  # what a shape bug raises
+
+    monkeypatch.setattr(Demo, "run", bug)
+    with pytest.raises(ValueError, match="broadcast"):
+        cli_main(["demo"])
+
+    def bad_input(self):
+        raise ConfigError("--num-envs must be >= 1, got 0")
+
+    monkeypatch.setattr(Demo, "run", bad_input)
+    assert cli_main(["demo"]) == 2
+    assert capsys.readouterr().err.strip() == "mjx-push: error: --num-envs must be >= 1, got 0"
+
+
 def test_success_tau_sets_the_environment_and_the_relabelling_radius():
     from train.cli import Train
 

@@ -29,6 +29,7 @@ from typing import Any, Callable
 
 import jax
 import jax.numpy as jnp
+from mjx_push.errors import ConfigError
 
 
 def select_envs(mask: jax.Array, new, old):
@@ -56,7 +57,7 @@ class SubstepScheduler:
 
     def __post_init__(self):
         if not (isinstance(self.chunk, int) and self.chunk >= 1):
-            raise ValueError(f"substep chunk must be a positive integer, got {self.chunk!r}")
+            raise ConfigError(f"substep chunk must be a positive integer, got {self.chunk!r}")
 
 
 @dataclasses.dataclass(frozen=True)

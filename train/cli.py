@@ -15,6 +15,7 @@ from train.config import AgentKind
 from train.eval_options import EvalOptions
 from train.flags import flag_errors
 from train.presets import Preset
+from mjx_push.errors import ConfigError
 
 
 @dataclasses.dataclass
@@ -186,7 +187,7 @@ class Train:
             try:
                 cfg = presets.with_overrides(cfg, presets.parse_overrides(self.set))
             except ValueError as e:  # unknown paths name themselves; a bad value names its field
-                raise ValueError(str(e) if str(e).startswith("--set") else f"--set: {e}") from None
+                raise ConfigError(str(e) if str(e).startswith("--set") else f"--set: {e}") from None
         return cfg
 
     def _flag_names(self) -> dict[str, str]:
@@ -205,10 +206,10 @@ class Train:
         console = Console()
         run_dir = self.run_dir or Path("runs") / f"{self.agent}-{self.preset}-s{self.seed}"
         if self.checkpoint_every < 1:
-            raise ValueError(f"--checkpoint-every must be >= 1, got {self.checkpoint_every}")
+            raise ConfigError(f"--checkpoint-every must be >= 1, got {self.checkpoint_every}")
         if self.resume:
             if not run_dir.is_dir():
-                raise ValueError(f"--resume: no run directory {run_dir}" + ("" if self.run_dir else
+                raise ConfigError(f"--resume: no run directory {run_dir}" + ("" if self.run_dir else
                                  " (the default for these --agent/--preset/--seed; pass --run-dir)"))
             cfg = run_mod.load_config(run_dir / "config.json")
             try:
@@ -217,7 +218,7 @@ class Train:
                 console.print(f"{done} Nothing was changed.", soft_wrap=True)
                 return
             if self._overrides():
-                raise ValueError("--resume continues the saved configuration; drop the other settings "
+                raise ConfigError("--resume continues the saved configuration; drop the other settings "
                                  f"({', '.join('--' + n.replace('_', '-') for n in self._overrides())})")
         else:
             cfg = self.config()
@@ -259,16 +260,16 @@ def resolve_policy(path: Path, name: str = "POLICY"):
     path = Path(path)
     stem = path.with_suffix("") if path.suffix in (".msgpack", ".json") else path
     if not (path.exists() or stem.with_suffix(".msgpack").exists() or stem.with_suffix(".json").exists()):
-        raise ValueError(f"{name} {path}: no such file or directory (a run directory, a saved policy "
+        raise ConfigError(f"{name} {path}: no such file or directory (a run directory, a saved policy "
                          "best_policy.msgpack / .json or their stem, or an exported .npz)")
     try:
         if path.is_dir():
             if (path / "best_policy.msgpack").is_file():
                 return run_mod.load_policy(path / "best_policy")
-            raise ValueError("not a finished run directory (no best_policy.msgpack)")
+            raise ConfigError("not a finished run directory (no best_policy.msgpack)")
         return run_mod.load_policy(path)
     except ValueError as e:
-        raise ValueError(f"{name} {path}: {e}") from None
+        raise ConfigError(f"{name} {path}: {e}") from None
 
 
 @dataclasses.dataclass(kw_only=True)
@@ -306,12 +307,12 @@ class Eval(EvalOptions):
         from train.evaluate import evaluate, metrics_table
 
         if self.batch < 1:
-            raise ValueError(f"--batch must be a positive integer, got {self.batch}")
+            raise ConfigError(f"--batch must be a positive integer, got {self.batch}")
         if self.success_tau is not None and not self.success_tau > 0:
-            raise ValueError(f"--success-tau must be a positive number of metres, got {self.success_tau}")
+            raise ConfigError(f"--success-tau must be a positive number of metres, got {self.success_tau}")
         is_expert = str(self.policy) == "expert"
         if self.preset is not None and not is_expert:
-            raise ValueError("--preset chooses the scripted expert's action box: use it with POLICY expert")
+            raise ConfigError("--preset chooses the scripted expert's action box: use it with POLICY expert")
         self.check_options()
         spec = dataclasses.replace(self.spec(self.batch), success_tau=self.success_tau)
         if is_expert:
@@ -388,13 +389,13 @@ class Reproduce:
         console = Console()
         out = self.out or Path(f"outputs/reproduce-{self.budget}")
         if self.episodes is not None and self.episodes < 1:
-            raise ValueError(f"--episodes must be >= 1, got {self.episodes}")
+            raise ConfigError(f"--episodes must be >= 1, got {self.episodes}")
         if self.jobs < 1:
-            raise ValueError(f"--jobs must be >= 1, got {self.jobs}")
+            raise ConfigError(f"--jobs must be >= 1, got {self.jobs}")
         if self.seeds < 1:
-            raise ValueError(f"--seeds must be >= 1, got {self.seeds}")
+            raise ConfigError(f"--seeds must be >= 1, got {self.seeds}")
         if sum(x is not None and x is not False for x in (self.plan, self.job, self.report_only or None)) > 1:
-            raise ValueError("--plan, --job and --report-only exclude each other")
+            raise ConfigError("--plan, --job and --report-only exclude each other")
         if self.plan is not None:
             lines = rep.plan(self.budget, self.seeds, out, tuple(self.agents), self.episodes)
             self.plan.parent.mkdir(parents=True, exist_ok=True)
@@ -408,7 +409,7 @@ class Reproduce:
                 return
             agent, sep, seed = self.job.partition(":")
             if not sep or agent not in rep.AGENTS or not seed.isdigit():
-                raise ValueError(f"--job must be AGENT:SEED (AGENT one of {rep.AGENTS}, SEED an int >= 0) or "
+                raise ConfigError(f"--job must be AGENT:SEED (AGENT one of {rep.AGENTS}, SEED an int >= 0) or "
                                  f"'expert', got {self.job!r}")
             rep.agent_job(self.budget, agent, int(seed), out, episodes, rep.PAPER_SHAPES, "difficult",
                           log=console.print)

@@ -14,6 +14,7 @@ import math
 from typing import Literal, get_args
 
 import jax.numpy as jnp
+from mjx_push.errors import ConfigError
 
 # The agent kinds, defined here once (the command line, the presets and reproduce take them from here;
 # export/policy_file.py keeps a NumPy-side copy that a test holds equal).
@@ -33,7 +34,7 @@ EVAL_SETTINGS: tuple[str, ...] = get_args(EvalSetting)
 
 def _check(ok: bool, name: str, requirement: str, value) -> None:
     if not ok:
-        raise ValueError(f"{name} must be {requirement}, got {value!r}")
+        raise ConfigError(f"{name} must be {requirement}, got {value!r}")
 
 
 def _positive_int(name: str, value) -> None:
@@ -213,7 +214,7 @@ class DemoConfig:
     def __post_init__(self):
         _check(isinstance(self.warmup, bool), "demo.warmup", "a bool", self.warmup)
         if (self.anneal_start is None) != (self.anneal_end is None):
-            raise ValueError("demo.anneal_start and demo.anneal_end must be given together (env steps), got "
+            raise ConfigError("demo.anneal_start and demo.anneal_end must be given together (env steps), got "
                              f"anneal_start={self.anneal_start!r}, anneal_end={self.anneal_end!r}")
         if self.anneal_start is not None:
             for name in ("anneal_start", "anneal_end"):

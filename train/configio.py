@@ -11,6 +11,7 @@ import dataclasses
 import json
 import typing
 from typing import Any
+from mjx_push.errors import ConfigError
 
 
 def to_dict(obj) -> dict:
@@ -24,7 +25,7 @@ def _convert(tp, value, where: str):
         return from_dict(tp, value, where)
     if tp is tuple or origin is tuple:
         if not isinstance(value, (list, tuple)):
-            raise ValueError(f"{where} must be a list, got {value!r}")
+            raise ConfigError(f"{where} must be a list, got {value!r}")
         return tuple(value)
     if origin in (typing.Union, getattr(__import__("types"), "UnionType", None)):
         if value is None:
@@ -38,17 +39,17 @@ def from_dict(cls, data: Any, where: str = ""):
     """Rebuild dataclass `cls` from `data` (as written by `to_dict`)."""
     name = where or cls.__name__
     if not isinstance(data, dict):
-        raise ValueError(f"{name} must be a mapping, got {type(data).__name__}")
+        raise ConfigError(f"{name} must be a mapping, got {type(data).__name__}")
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
     unknown = sorted(set(data) - set(fields))
     if unknown:
-        raise ValueError(f"{name} has unknown fields {unknown}")
+        raise ConfigError(f"{name} has unknown fields {unknown}")
     kwargs = {}
     for key, f in fields.items():
         if key not in data:
             if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
-                raise ValueError(f"{name} is missing the field {key!r}")
+                raise ConfigError(f"{name} is missing the field {key!r}")
             continue
         kwargs[key] = _convert(hints[key], data[key], f"{name}.{key}")
     return cls(**kwargs)

@@ -24,6 +24,7 @@ import optax
 
 from mjx_push import encoder as enc
 from mjx_push import objects
+from mjx_push.errors import ConfigError
 
 
 @dataclasses.dataclass(frozen=True)
@@ -41,13 +42,13 @@ class EncoderTrainConfig:
         for name in ("steps", "batch_size", "eval_masks", "eval_every"):
             v = getattr(self, name)
             if not (isinstance(v, int) and v > 0):
-                raise ValueError(f"encoder.{name} must be a positive int, got {v!r}")
+                raise ConfigError(f"encoder.{name} must be a positive int, got {v!r}")
         if not (math.isfinite(self.lr) and self.lr > 0):
-            raise ValueError(f"encoder.lr must be a finite number > 0, got {self.lr}")
+            raise ConfigError(f"encoder.lr must be a finite number > 0, got {self.lr}")
         if not (math.isfinite(self.kl_weight) and self.kl_weight >= 0):
-            raise ValueError(f"encoder.kl_weight must be a finite number >= 0, got {self.kl_weight}")
+            raise ConfigError(f"encoder.kl_weight must be a finite number >= 0, got {self.kl_weight}")
         if not (math.isfinite(self.yaw_weight) and self.yaw_weight >= 0):
-            raise ValueError(f"encoder.yaw_weight must be a finite number >= 0, got {self.yaw_weight}")
+            raise ConfigError(f"encoder.yaw_weight must be a finite number >= 0, got {self.yaw_weight}")
 
 
 def loss_fn(params, x, key, kl_weight):

@@ -11,6 +11,7 @@ from typing import Annotated, Literal
 import tyro
 
 from train.flags import flag_errors
+from mjx_push.errors import ConfigError
 
 Setting = Literal["standard", "difficult", "custom"]
 Shape = Literal["all", "cylinder", "square", "rectangular", "cuboid"]
@@ -44,27 +45,27 @@ class EvalOptions:
     def check_options(self) -> None:
         """Raise ValueError naming the option at fault, before any work is done."""
         if isinstance(self.episodes, bool) or not isinstance(self.episodes, int) or self.episodes < 1:
-            raise ValueError(f"--episodes must be a positive integer, got {self.episodes!r}")
+            raise ConfigError(f"--episodes must be a positive integer, got {self.episodes!r}")
         ranges = {"--mass": self.mass, "--friction": self.friction, "--min-height": self.min_height}
         given = [k for k, v in ranges.items() if v is not None]
         if given and self.setting != "custom":
             verb = "needs" if len(given) == 1 else "need"
-            raise ValueError(f"{' / '.join(given)} {verb} --setting custom (got --setting {self.setting})")
+            raise ConfigError(f"{' / '.join(given)} {verb} --setting custom (got --setting {self.setting})")
         with flag_errors({"objects.mass": "--mass", "objects.friction": "--friction",
                           "objects.min_height": "--min-height", "setting": "--setting", "shape": "--shape"}):
             self.spec().object_config()  # validates the ranges
         if self.video is not None:
             if not isinstance(self.video_episodes, int) or self.video_episodes < 1:
-                raise ValueError(f"--video-episodes must be a positive integer, got {self.video_episodes!r}")
+                raise ConfigError(f"--video-episodes must be a positive integer, got {self.video_episodes!r}")
             from mjx_push import video
             from mjx_push.renderer import renderer_available, unavailable_reason
 
             try:
                 video.check_writable(self.video)
             except ValueError as e:
-                raise ValueError(f"--video: {e}") from None
+                raise ConfigError(f"--video: {e}") from None
             if not renderer_available():
-                raise ValueError(f"--video: {unavailable_reason()}")
+                raise ConfigError(f"--video: {unavailable_reason()}")
 
     def spec(self, batch: int = 20):
         """The evaluation protocol's `train.evaluate.EvalSpec` for these options (recording the video's

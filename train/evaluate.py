@@ -31,6 +31,7 @@ from mjx_push.env import EnvConfig, PushEnv
 from train.networks import make_networks
 from train.presets import RunConfig
 from train.run import Policy
+from mjx_push.errors import ConfigError
 
 SETTINGS = ("standard", "difficult", "custom")
 SHAPES = ("all", "cylinder", "square", "rectangular", "cuboid")
@@ -80,20 +81,20 @@ class EvalSpec:
 
     def __post_init__(self):
         if self.setting not in SETTINGS:
-            raise ValueError(f"setting must be one of {SETTINGS}, got {self.setting!r}")
+            raise ConfigError(f"setting must be one of {SETTINGS}, got {self.setting!r}")
         if self.shape not in SHAPES:
-            raise ValueError(f"shape must be one of {SHAPES}, got {self.shape!r}")
+            raise ConfigError(f"shape must be one of {SHAPES}, got {self.shape!r}")
         if not (isinstance(self.episodes, int) and self.episodes > 0):
-            raise ValueError(f"episodes must be a positive integer, got {self.episodes!r}")
+            raise ConfigError(f"episodes must be a positive integer, got {self.episodes!r}")
         if not (isinstance(self.batch, int) and self.batch > 0):
-            raise ValueError(f"batch must be a positive integer, got {self.batch!r}")
+            raise ConfigError(f"batch must be a positive integer, got {self.batch!r}")
         custom = any(v is not None for v in (self.mass, self.friction, self.min_height))
         if custom and self.setting != "custom":
-            raise ValueError("mass / friction / min_height ranges need setting 'custom'")
+            raise ConfigError("mass / friction / min_height ranges need setting 'custom'")
         if not 0 <= self.record <= self.episodes:
-            raise ValueError(f"record must be in [0, episodes], got {self.record}")
+            raise ConfigError(f"record must be in [0, episodes], got {self.record}")
         if self.success_tau is not None and not (math.isfinite(self.success_tau) and self.success_tau > 0):
-            raise ValueError(f"success_tau must be a positive number of metres, got {self.success_tau!r}")
+            raise ConfigError(f"success_tau must be a positive number of metres, got {self.success_tau!r}")
 
     def object_config(self, base: objects.ObjectConfig | None = None) -> objects.ObjectConfig:
         """The object distribution; uniform sampling whatever the agent trained on."""

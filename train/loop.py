@@ -40,6 +40,7 @@ from train.normalizer import RunningStats
 from train.replay import ReplayBuffer
 from train.rollout import make_collect, summarize
 from train.sac import SACState, init_state, make_update
+from mjx_push.errors import ConfigError
 
 Params = Any
 
@@ -50,7 +51,7 @@ def spread_envs(k: int, groups: tuple[int, ...]) -> np.ndarray:
     group (shape) and the agent's own environments keep the batch's mix."""
     n = sum(groups)
     if not 0 <= k <= n:
-        raise ValueError(f"cannot pick {k} of {n} environments")
+        raise ConfigError(f"cannot pick {k} of {n} environments")
     quota = np.array([k * g / n for g in groups])
     take = np.floor(quota).astype(int)
     for i in np.argsort(-(quota - take), kind="stable")[: k - take.sum()]:
@@ -102,14 +103,14 @@ def improves(reward, success, best_reward, best_success):
 def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) -> Trainer:
     loop, sac_cfg = config.loop, config.sac
     if adapter.success_tau is not None and abs(adapter.success_tau - config.replay.success_tau) > 1e-12:
-        raise ValueError(
+        raise ConfigError(
             f"replay.success_tau must equal the environment's success radius {adapter.success_tau}, "
             f"got {config.replay.success_tau}"
         )
     T, N = loop.episode_len, loop.num_envs
     agent, demo_cfg = config.agent, config.demo
     if demo_cfg.enabled and adapter.expert is None:
-        raise ValueError("demonstrations (demo.warmup / demo.fraction) need an environment with a scripted expert")
+        raise ConfigError("demonstrations (demo.warmup / demo.fraction) need an environment with a scripted expert")
     privileged = agent.critic_obs == "privileged"
     nets = make_networks(agent, action_dim, adapter.priv_dim if privileged else 0)
     stored_priv_dim = adapter.priv_dim if privileged else 0
@@ -298,7 +299,7 @@ class Runner:
                 episodes = {**self.eval_chunks()[0], "use": np.asarray(False)}
             return self._rollout(actor_params, key, random_actions, deterministic, expert_envs, episodes)
         if episodes is not None:
-            raise ValueError("this environment adapter defines no evaluation episodes")
+            raise ConfigError("this environment adapter defines no evaluation episodes")
         return self._rollout(actor_params, key, random_actions, deterministic, expert_envs)
 
     def expert_envs(self, env_steps: int) -> np.ndarray:

@@ -33,6 +33,7 @@ import jax
 import jax.numpy as jnp
 
 from train.config import AgentConfig
+from mjx_push.errors import ConfigError
 
 LOG_STD_MIN, LOG_STD_MAX = -20.0, 2.0
 OBS_DIM = 14
@@ -289,7 +290,7 @@ class Networks:
     def critic(self) -> nn.Module:
         if self.agent.critic_obs == "privileged":
             if self.priv_dim < 2:  # only the learner builds critics; policies and exports need the actor alone
-                raise ValueError("agent.critic_obs 'privileged' needs an environment that reports its ground-truth "
+                raise ConfigError("agent.critic_obs 'privileged' needs an environment that reports its ground-truth "
                                  f"state (priv_dim >= 2, got {self.priv_dim})")
             return TwinPrivilegedQ(self.agent, self.priv_dim)
         return TwinQ(self.agent)

@@ -34,6 +34,7 @@ from mjx_push.env import EnvConfig
 from mjx_push.expert import ExpertConfig
 from train import configio
 from train.config import AGENT_KINDS, AgentConfig, DemoConfig, LoopConfig, ReplayConfig, SACConfig, TrainConfig
+from mjx_push.errors import ConfigError
 
 Preset = Literal["smoke", "cpu", "cpu-long", "reference", "paper"]  # defined here once
 PRESETS: tuple[str, ...] = get_args(Preset)
@@ -52,20 +53,20 @@ class RunConfig:
 
     def __post_init__(self):
         if self.agent not in AGENT_KINDS:
-            raise ValueError(f"agent must be one of {AGENT_KINDS}, got {self.agent!r}")
+            raise ConfigError(f"agent must be one of {AGENT_KINDS}, got {self.agent!r}")
         if self.preset not in PRESETS:
-            raise ValueError(f"preset must be one of {PRESETS}, got {self.preset!r}")
+            raise ConfigError(f"preset must be one of {PRESETS}, got {self.preset!r}")
         if self.train.agent.kind != self.agent:
-            raise ValueError(f"train.agent.kind ({self.train.agent.kind!r}) must equal agent ({self.agent!r})")
+            raise ConfigError(f"train.agent.kind ({self.train.agent.kind!r}) must equal agent ({self.agent!r})")
         if self.train.loop.episode_len != self.env.episode_length:
-            raise ValueError(
+            raise ConfigError(
                 f"train.loop.episode_len ({self.train.loop.episode_len}) must equal env.episode_length "
                 f"({self.env.episode_length})"
             )
         if abs(self.train.replay.success_tau - self.env.success_tau) > 1e-12:
-            raise ValueError("train.replay.success_tau must equal env.success_tau")
+            raise ConfigError("train.replay.success_tau must equal env.success_tau")
         if self.env.objects.shape == "any" and self.train.loop.num_envs < 2:
-            raise ValueError("train.loop.num_envs must be >= 2 with shape filter 'any' (one group per shape)")
+            raise ConfigError("train.loop.num_envs must be >= 2 with shape filter 'any' (one group per shape)")
 
 
 def env_for(agent: str, objects_cfg: objects.ObjectConfig | None = None, **env_fields) -> EnvConfig:
@@ -116,9 +117,9 @@ _PRESETS = {
 
 def make(agent: str, preset: str = "cpu", seed: int = 0) -> RunConfig:
     if preset not in PRESETS:
-        raise ValueError(f"preset must be one of {PRESETS}, got {preset!r}")
+        raise ConfigError(f"preset must be one of {PRESETS}, got {preset!r}")
     if agent not in AGENT_KINDS:
-        raise ValueError(f"agent must be one of {AGENT_KINDS}, got {agent!r}")
+        raise ConfigError(f"agent must be one of {AGENT_KINDS}, got {agent!r}")
     p = _PRESETS[preset]
     env = env_for(agent, **p["env"])
     train = TrainConfig(
@@ -141,7 +142,7 @@ def override(cfg: RunConfig, **fields) -> RunConfig:
         section, name = dotted.split(".")
         sub = getattr(train, section, None)
         if sub is None or not hasattr(sub, name):
-            raise ValueError(f"unknown setting {dotted!r}")
+            raise ConfigError(f"unknown setting {dotted!r}")
         train = dataclasses.replace(train, **{section: dataclasses.replace(sub, **{name: value})})
     return dataclasses.replace(cfg, train=train)
 
@@ -153,7 +154,7 @@ def parse_overrides(items) -> dict:
     for item in items:
         path, sep, text = item.partition("=")
         if not sep or not path:
-            raise ValueError(f"--set takes PATH=VALUE (e.g. train.sac.bc_weight=0), got {item!r}")
+            raise ConfigError(f"--set takes PATH=VALUE (e.g. train.sac.bc_weight=0), got {item!r}")
         try:
             out[path] = json.loads(text)
         except json.JSONDecodeError:
@@ -171,9 +172,9 @@ def with_overrides(cfg: RunConfig, overrides: dict) -> RunConfig:
         node = d
         for part in parents:
             if not isinstance(node.get(part), dict):
-                raise ValueError(f"--set {dotted}: unknown setting (no section {part!r})")
+                raise ConfigError(f"--set {dotted}: unknown setting (no section {part!r})")
             node = node[part]
         if leaf not in node:
-            raise ValueError(f"--set {dotted}: unknown setting (no field {leaf!r})")
+            raise ConfigError(f"--set {dotted}: unknown setting (no field {leaf!r})")
         node[leaf] = value
     return configio.from_dict(RunConfig, d, "config")

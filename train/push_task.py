@@ -19,6 +19,7 @@ from mjx_push import expert as expert_mod
 from mjx_push.batch import BatchState, PushBatch
 from mjx_push.env import EnvConfig
 from train.adapter import EnvAdapter, SubstepScheduler
+from mjx_push.errors import ConfigError
 
 # The privileged state, per environment step: name -> width, in order. The object's xy comes first
 # (the learner's convention: priv[:2] is the achieved goal).
@@ -79,7 +80,7 @@ def make_push_adapter(env_config: EnvConfig, encoder_params, substep_chunk: int 
     `substep_chunk` 0 steps all environments in lockstep; both give the same episodes. The adapter's
     expert is `mjx_push.expert` under `expert_config`."""
     if not (isinstance(substep_chunk, int) and substep_chunk >= 0):
-        raise ValueError(f"substep_chunk must be an integer >= 0 (0: lockstep), got {substep_chunk!r}")
+        raise ConfigError(f"substep_chunk must be an integer >= 0 (0: lockstep), got {substep_chunk!r}")
     batches: dict[int, PushBatch] = {}
 
     def batch(n: int) -> PushBatch:

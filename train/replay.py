@@ -27,6 +27,7 @@ import jax
 import jax.numpy as jnp
 
 from train.config import ReplayConfig
+from mjx_push.errors import ConfigError
 
 Episodes = dict  # name -> array with a leading episode axis, fields as in the module docstring
 
@@ -72,7 +73,7 @@ def init(config: ReplayConfig, episode_len: int, action_dim: int = 3, priv_dim: 
          expert_labels: bool = False) -> ReplayBuffer:
     capacity = config.capacity_transitions // episode_len
     if capacity < 1:
-        raise ValueError(
+        raise ConfigError(
             f"replay.capacity_transitions must hold at least one episode of {episode_len} steps, "
             f"got {config.capacity_transitions}"
         )
@@ -85,9 +86,9 @@ def add(buffer: ReplayBuffer, episodes: Episodes) -> ReplayBuffer:
     """Write a batch of n episodes (leading axis n <= capacity) to the next n slots, modulo capacity."""
     n = episodes["valid"].shape[0]
     if n > buffer.capacity:
-        raise ValueError(f"cannot add {n} episodes at once to a buffer of {buffer.capacity} episodes")
+        raise ConfigError(f"cannot add {n} episodes at once to a buffer of {buffer.capacity} episodes")
     if set(episodes) - {"demo"} != set(buffer.data) - {"demo"}:  # "demo" is optional: False when absent
-        raise ValueError(f"episode fields {sorted(episodes)} differ from the buffer's {sorted(buffer.data)}")
+        raise ConfigError(f"episode fields {sorted(episodes)} differ from the buffer's {sorted(buffer.data)}")
     slots = (buffer.count + jnp.arange(n, dtype=jnp.int32)) % buffer.capacity
     valid = episodes["valid"].astype(bool)
 

@@ -15,6 +15,7 @@ import numpy as np
 
 from train.evaluate import DISTANCE_METRICS, METRICS, sem
 from train.loop import improves
+from mjx_push.errors import ConfigError
 
 LABELS = {"success": "success rate", "reward": "mean episode reward", "overshoot": "overshoot corrections",
           "distance": "distance corrections"}
@@ -128,11 +129,11 @@ def read_training(run_dir: Path) -> dict:
     counted but each resume's compilation is)."""
     path = Path(run_dir) / "metrics.csv"
     if not path.is_file():
-        raise ValueError(f"no metrics.csv in {run_dir}: not a training run directory")
+        raise ConfigError(f"no metrics.csv in {run_dir}: not a training run directory")
     with path.open() as f:
         rows = list(csv.DictReader(f))
     if not rows:
-        raise ValueError(f"{path} has no rows")
+        raise ConfigError(f"{path} has no rows")
     evals = [r for r in rows if r.get("eval/mean_reward")]
     steps = [int(r["env_steps"]) for r in evals]
     reward = [float(r["eval/mean_reward"]) for r in evals]

@@ -35,6 +35,7 @@ from train.config import AGENT_KINDS
 from train import run as run_mod
 from train.evaluate import DISTANCE_METRICS, METRICS, EvalSpec, ExpertPolicy, evaluate, evaluator_for, summarize
 from train.report import read_training, write_report
+from mjx_push.errors import ConfigError
 
 AGENTS = AGENT_KINDS
 # The order agents start in by default: uGRU and eGRU evaluate with the same compiled programs (one
@@ -49,7 +50,7 @@ def train_or_reuse(cfg: presets.RunConfig, run_dir: Path, log: Callable[[str], N
     if (run_dir / "summary.json").is_file() and (run_dir / "best_policy.msgpack").is_file():
         saved = run_mod.load_config(run_dir / "config.json")
         if saved != cfg:
-            raise ValueError(f"{run_dir} holds a finished run of another configuration; use another --out")
+            raise ConfigError(f"{run_dir} holds a finished run of another configuration; use another --out")
         log(f"reusing finished run {run_dir}")
         return
     resume = (run_dir / "checkpoints").is_dir() and any(p.name.isdigit() for p in (run_dir / "checkpoints").iterdir())
@@ -70,12 +71,12 @@ def scored_policy(run_dir: Path) -> tuple[str, int]:
     run_dir = Path(run_dir)
     pick = read_training(run_dir)["selected_env_steps"]
     if pick is None:
-        raise ValueError(f"{run_dir}/metrics.csv records no evaluation: the run has no best policy")
+        raise ConfigError(f"{run_dir}/metrics.csv records no evaluation: the run has no best policy")
     for name, key in (("best_policy", "best_env_steps"), ("final_policy", "env_steps")):  # train/run.py's records
         meta = run_dir / f"{name}.json"
         if meta.is_file() and json.loads(meta.read_text())["scores"].get(key) == pick:
             return name, pick
-    raise ValueError(f"the selection rule picks the actor of env step {pick} in {run_dir}, but neither "
+    raise ConfigError(f"the selection rule picks the actor of env step {pick} in {run_dir}, but neither "
                      "best_policy nor final_policy holds it (a run of an older rule): retrain it")
 
 
@@ -172,7 +173,7 @@ def agent_job(
     if train:
         train_or_reuse(cfg, run_dir, log)
     elif not is_finished(run_dir):
-        raise ValueError(f"{run_dir} has not finished training")
+        raise ConfigError(f"{run_dir} has not finished training")
     summaries = {}
     for shape in shapes:
         spec = EvalSpec(setting=setting, shape=shape, episodes=episodes, batch=min(episodes, 20))
@@ -194,7 +195,7 @@ def run_jobs(fn: Callable, calls: list[tuple[tuple, dict]], jobs: int) -> list:
     (spawned: JAX is not fork-safe), each compiling its own functions. The first failure cancels the
     jobs not yet started and is raised, naming the call."""
     if jobs < 1:
-        raise ValueError(f"jobs must be >= 1, got {jobs}")
+        raise ConfigError(f"jobs must be >= 1, got {jobs}")
     if jobs == 1:
         return [fn(*args, **kwargs) for args, kwargs in calls]
     ctx = multiprocessing.get_context("spawn")
@@ -246,10 +247,10 @@ def reproduce(
     yet) and names the others. `config_hook` lets tests shrink the runs (it must be picklable when
     jobs > 1)."""
     if seeds < 1:
-        raise ValueError(f"seeds must be >= 1, got {seeds}")
+        raise ConfigError(f"seeds must be >= 1, got {seeds}")
     for a in agents:
         if a not in AGENTS:
-            raise ValueError(f"agents must be among {AGENTS}, got {a!r}")
+            raise ConfigError(f"agents must be among {AGENTS}, got {a!r}")
     out = Path(out)
     episodes = episodes or EVAL_EPISODES[budget]
     t0 = time.perf_counter()
@@ -262,7 +263,7 @@ def reproduce(
         for a, s in missing:
             log(f"{run_dir_of(out, a, s)} has not finished: left out of the report")
         if not items:
-            raise ValueError(f"no finished run in {out / 'runs'} for agents {agents} and {seeds} seed(s)")
+            raise ConfigError(f"no finished run in {out / 'runs'} for agents {agents} and {seeds} seed(s)")
     calls = []
     for agent, seed in items:
         # In a worker, `log` (often a rich console) stays behind: lines go to stdout, prefixed.

@@ -42,6 +42,7 @@ from train.adapter import EnvAdapter
 from train.loop import Runner, TrainState, make_train
 from train.loop import train as train_loop
 from train.presets import RunConfig
+from mjx_push.errors import ConfigError
 
 POLICY_FORMAT = "mjx-push-policy"
 POLICY_VERSION = 1
@@ -60,11 +61,11 @@ def config_from_dict(d: dict) -> RunConfig:
 def load_config(path: Path) -> RunConfig:
     path = Path(path)
     if not path.is_file():
-        raise ValueError(f"run config not found: {path}")
+        raise ConfigError(f"run config not found: {path}")
     try:
         return config_from_dict(json.loads(path.read_text()))
     except json.JSONDecodeError as e:
-        raise ValueError(f"run config {path} is not valid JSON: {e}") from None
+        raise ConfigError(f"run config {path} is not valid JSON: {e}") from None
 
 
 # --- checkpoints -------------------------------------------------------------------------------------
@@ -99,25 +100,25 @@ class Checkpoints:
         none, when it was made by another configuration, or when its arrays are unreadable."""
         step = self.latest() if step is None else step
         if step is None:
-            raise ValueError(f"no checkpoint in {self.directory}")
+            raise ConfigError(f"no checkpoint in {self.directory}")
         try:
             meta = self.manager.restore(step, args=ocp.args.Composite(meta=ocp.args.JsonRestore()))["meta"]
         except Exception as e:
-            raise ValueError(f"checkpoint {self.directory}/{step} is corrupt (its record cannot be read): {e}") from None
+            raise ConfigError(f"checkpoint {self.directory}/{step} is corrupt (its record cannot be read): {e}") from None
         if not isinstance(meta, dict) or meta.get("format") != CHECKPOINT_FORMAT:
-            raise ValueError(f"{self.directory}/{step} is not an mjx-push checkpoint")
+            raise ConfigError(f"{self.directory}/{step} is not an mjx-push checkpoint")
         if meta.get("version") != CHECKPOINT_VERSION:
-            raise ValueError(f"checkpoint {self.directory}/{step} has format version {meta.get('version')}, "
+            raise ConfigError(f"checkpoint {self.directory}/{step} has format version {meta.get('version')}, "
                              f"this mjx-push reads version {CHECKPOINT_VERSION}")
         diff = configio.differences(meta.get("config", {}), config_dict(config))
         if diff:
-            raise ValueError(f"checkpoint {self.directory}/{step} was made with a different configuration: "
+            raise ConfigError(f"checkpoint {self.directory}/{step} was made with a different configuration: "
                              + "; ".join(diff[:6]))
         abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, template)
         try:
             state = self.manager.restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract)))["state"]
         except Exception as e:
-            raise ValueError(f"checkpoint {self.directory}/{step} is corrupt or does not match this run's "
+            raise ConfigError(f"checkpoint {self.directory}/{step} is corrupt or does not match this run's "
                              f"state (shapes, dtypes or structure): {type(e).__name__}: {str(e)[:300]}") from None
         return state, meta
 
@@ -156,20 +157,20 @@ def load_policy(path: Path) -> Policy:
     blob_path, rec_path = stem.with_suffix(".msgpack"), stem.with_suffix(".json")
     for p in (blob_path, rec_path):
         if not p.is_file():
-            raise ValueError(f"policy file not found: {p}")
+            raise ConfigError(f"policy file not found: {p}")
     try:
         record = json.loads(rec_path.read_text())
     except json.JSONDecodeError as e:
-        raise ValueError(f"policy record {rec_path} is not valid JSON: {e}") from None
+        raise ConfigError(f"policy record {rec_path} is not valid JSON: {e}") from None
     if record.get("format") != POLICY_FORMAT:
-        raise ValueError(f"{rec_path} is not an mjx-push policy record")
+        raise ConfigError(f"{rec_path} is not an mjx-push policy record")
     if record.get("version") != POLICY_VERSION:
-        raise ValueError(f"policy {rec_path} has format version {record.get('version')}, expected {POLICY_VERSION}")
+        raise ConfigError(f"policy {rec_path} has format version {record.get('version')}, expected {POLICY_VERSION}")
     config = config_from_dict(record["config"])
     try:
         blob = serialization.msgpack_restore(blob_path.read_bytes())
     except Exception as e:
-        raise ValueError(f"policy weights {blob_path} are corrupt: {e}") from None
+        raise ConfigError(f"policy weights {blob_path} are corrupt: {e}") from None
     # Check every array against freshly initialised networks of the recorded agent.
     from train.networks import make_networks
 
@@ -178,7 +179,7 @@ def load_policy(path: Path) -> Policy:
     encoder_t = enc._template()
     for name, template in (("actor", actor_t), ("encoder", encoder_t)):
         if name not in blob:
-            raise ValueError(f"policy weights {blob_path} have no {name!r} parameters")
+            raise ConfigError(f"policy weights {blob_path} have no {name!r} parameters")
         want = jax.tree.map(lambda s: s.shape, template)
         try:
             got = jax.tree.map(lambda a: np.shape(a), blob[name])
@@ -186,7 +187,7 @@ def load_policy(path: Path) -> Policy:
         except Exception:
             same = False
         if not same:
-            raise ValueError(f"policy weights {blob_path}: the {name!r} parameters do not match a "
+            raise ConfigError(f"policy weights {blob_path}: the {name!r} parameters do not match a "
                              f"{config.agent} network")
     to_jnp = lambda t: jax.tree.map(jnp.asarray, t)  # noqa: E731
     return Policy(config, to_jnp(blob["actor"]), to_jnp(blob["encoder"]), record.get("scores", {}))
@@ -232,7 +233,7 @@ def _check_same_config(run_dir: Path, cfg: RunConfig) -> None:
     saved = load_config(run_dir / "config.json")
     diff = configio.differences(config_dict(saved), config_dict(cfg))
     if diff:
-        raise ValueError(f"--resume: {run_dir} was started with a different configuration: " + "; ".join(diff[:6]))
+        raise ConfigError(f"--resume: {run_dir} was started with a different configuration: " + "; ".join(diff[:6]))
 
 
 def prepare_dir(run_dir: Path, cfg: RunConfig, resume: bool) -> None:
@@ -240,11 +241,11 @@ def prepare_dir(run_dir: Path, cfg: RunConfig, resume: bool) -> None:
     has_ckpt = any(p.is_dir() and p.name.isdigit() for p in (run_dir / "checkpoints").glob("*"))
     if resume:
         if not has_ckpt:
-            raise ValueError(f"--resume: no checkpoint in {run_dir / 'checkpoints'}")
+            raise ConfigError(f"--resume: no checkpoint in {run_dir / 'checkpoints'}")
         _check_same_config(run_dir, cfg)
     else:
         if has_ckpt or (run_dir / "metrics.csv").exists():
-            raise ValueError(f"run directory {run_dir} already holds a run; pass --resume to continue it or "
+            raise ConfigError(f"run directory {run_dir} already holds a run; pass --resume to continue it or "
                              "choose another --run-dir")
         run_dir.mkdir(parents=True, exist_ok=True)
         atomic.write_text(run_dir / "config.json", json.dumps(config_dict(cfg), indent=2) + "\n")
@@ -303,7 +304,7 @@ def run(
     if resume:
         check_not_finished(run_dir, cfg)
         if not run_dir.is_dir():
-            raise ValueError(f"--resume: no checkpoint in {run_dir / 'checkpoints'} ({run_dir} does not exist)")
+            raise ConfigError(f"--resume: no checkpoint in {run_dir / 'checkpoints'} ({run_dir} does not exist)")
     else:
         run_dir.mkdir(parents=True, exist_ok=True)
     with RunLock(run_dir), (StopOnSignal() if stop_on_signal else contextlib.nullcontext()) as stop:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import fcntl
 import os
 from pathlib import Path
+from mjx_push.errors import ConfigError
 
 LOCK_NAME = ".lock"
 
@@ -27,7 +28,7 @@ class RunLock:
         except BlockingIOError:
             holder = os.read(fd, 64).decode(errors="replace").strip() or "unknown"
             os.close(fd)
-            raise ValueError(f"run directory {self.path.parent} is in use by another mjx-push process "
+            raise ConfigError(f"run directory {self.path.parent} is in use by another mjx-push process "
                              f"(pid {holder}); wait for it to finish or choose another --run-dir") from None
         os.ftruncate(fd, 0)
         os.write(fd, f"{os.getpid()}\n".encode())

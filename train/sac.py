@@ -28,6 +28,7 @@ import optax
 
 from train.config import AgentConfig, SACConfig
 from train.networks import ACTION_DIM, Networks, make_networks
+from mjx_push.errors import ConfigError
 
 Params = Any
 
@@ -106,9 +107,9 @@ def make_actor_loss(nets: Networks, bc_weight: float = 0.0, q_filter: bool = Tru
     actor loss plus ``bc_weight * bc_scale`` times the cloning term (``objective`` "sac"), or the
     cloning term alone ("bc"). ``bc_scale`` is the teacher's annealing factor (DemoConfig)."""
     if objective not in ("sac", "bc"):
-        raise ValueError(f"actor objective must be 'sac' or 'bc', got {objective!r}")
+        raise ConfigError(f"actor objective must be 'sac' or 'bc', got {objective!r}")
     if objective == "bc" and (bc_weight <= 0 or q_filter):
-        raise ValueError("the cloning-only actor needs bc_weight > 0 and no Q-filter")
+        raise ConfigError("the cloning-only actor needs bc_weight > 0 and no Q-filter")
 
     def actor_loss(actor_params, critic_params, alpha, batch, key, demo=None, bc_scale=1.0):
         B = batch["t"].shape[0]
@@ -148,7 +149,7 @@ def make_optimizer(sac: SACConfig, total_updates: int | None = None) -> optax.Gr
     if not sac.lr_decay:
         return optax.adam(sac.lr)
     if not total_updates or total_updates < 1:
-        raise ValueError(f"sac.lr_decay needs total_updates >= 1, got {total_updates!r}")
+        raise ConfigError(f"sac.lr_decay needs total_updates >= 1, got {total_updates!r}")
     return optax.adam(optax.linear_schedule(sac.lr, 0.0, total_updates))
 
 
