@@ -17,7 +17,7 @@ import json
 import time
 from pathlib import Path
 
-import mjx_push  # noqa: F401  (CPU XLA flag)
+from mjx_push import xla  # the CPU fusion-emitter flag on import (before jax)
 import numpy as np
 from rich.console import Console
 from rich.table import Table
@@ -74,4 +74,5 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
+    xla.use_cpu_devices()  # one CPU device per core, as the mjx-push command does
     main()

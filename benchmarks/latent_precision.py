@@ -28,7 +28,7 @@ import json
 import time
 from pathlib import Path
 
-import mjx_push  # noqa: F401  (CPU XLA flag)
+from mjx_push import xla  # the CPU fusion-emitter flag on import (before jax)
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -218,4 +218,5 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
+    xla.use_cpu_devices()  # one CPU device per core, as the mjx-push command does
     raise SystemExit(main())

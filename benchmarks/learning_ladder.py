@@ -25,7 +25,7 @@ import platform
 import time
 from pathlib import Path
 
-import mjx_push  # noqa: F401  (CPU XLA flag)
+from mjx_push import xla  # the CPU fusion-emitter flag on import (before jax)
 import jax
 import numpy as np
 from rich.console import Console
@@ -158,4 +158,5 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
+    xla.use_cpu_devices()  # one CPU device per core, as the mjx-push command does
     main()

@@ -32,7 +32,7 @@ import sys
 import time
 from pathlib import Path
 
-import mjx_push  # noqa: F401  (CPU XLA flags)
+from mjx_push import xla  # the CPU fusion-emitter flag on import (before jax)
 import jax
 
 OBJECT_TOL = 1e-3  # m: the open-loop target
@@ -260,4 +260,5 @@ def main(argv=None) -> None:
 
 
 if __name__ == "__main__":
+    xla.use_cpu_devices()  # one CPU device per core, as the mjx-push command does
     main()

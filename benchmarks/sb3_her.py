@@ -25,7 +25,7 @@ import json
 import time
 from pathlib import Path
 
-import mjx_push  # noqa: F401  (CPU XLA flag; EGL)
+from mjx_push import xla  # the CPU fusion-emitter flag on import (before jax) and EGL
 import numpy as np
 from rich.console import Console
 from rich.table import Table
@@ -127,4 +127,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    xla.use_cpu_devices()  # one CPU device per core, as the mjx-push command does
     main()

@@ -30,7 +30,7 @@ import platform
 import time
 from pathlib import Path
 
-import mjx_push  # noqa: F401  (CPU XLA flags)
+from mjx_push import xla  # the CPU fusion-emitter flag on import (before jax)
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -198,4 +198,5 @@ def main(argv=None) -> None:
 
 
 if __name__ == "__main__":
+    xla.use_cpu_devices()  # one CPU device per core, as the mjx-push command does
     main()

@@ -221,7 +221,10 @@ class Eval(train_cli.Eval):
 def main(argv: list[str] | None = None) -> int:
     """The `mjx-push` entry point."""
     commands = {**train_cli.COMMANDS, "eval": Eval, **COMMANDS}
+    from mjx_push import xla
     from train import compile_cache
+
+    xla.use_cpu_devices()  # one CPU device per core, before anything starts JAX; spawned jobs inherit it
 
     compile_cache.enable()
     try:

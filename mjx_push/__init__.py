@@ -1,11 +1,21 @@
-"""mjx_push: the batched Franka Panda pushing scene in MuJoCo MJX (simulation only, no learning)."""
+"""mjx_push: the batched Franka Panda pushing scene in MuJoCo MJX (simulation only, no learning).
+
+What importing the package changes in the process, all of it here:
+- XLA_FLAGS gains `--xla_cpu_use_fusion_emitters=false` on jaxlib 0.10 (`mjx_push.xla`: without it CPU
+  MJX runs ~500x slower on the 7-joint arm). The split of CPU batches over one device per core is not
+  applied on import: entry points call `mjx_push.xla.use_cpu_devices()`.
+- MUJOCO_GL defaults to "egl" on a Linux machine without a display (GLFW cannot render there).
+- mujoco.mjx's "Failed to import warp" lines are kept off stdout while it is imported.
+- Importing `mjx_push.brax_env` (not the package) gives jax >= 0.10 back `jax.device_put_replicated`,
+  which brax 0.14.2's trainers call.
+"""
 
 import contextlib as _contextlib
 import io as _io
 import os as _os
 import sys as _sys
 
-from mjx_push import xla as _xla  # noqa: F401  (must run before jax initialises)
+from mjx_push import xla as _xla  # noqa: F401  (the fusion-emitter flag: before jax initialises)
 
 # MuJoCo picks its OpenGL backend when first imported; on a Linux machine without a display the default
 # (GLFW) cannot render, so choose EGL there unless the user chose.

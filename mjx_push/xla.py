@@ -1,22 +1,25 @@
-"""CPU XLA flags, applied before JAX initialises its backend.
+"""CPU XLA flags: one the package applies on import, one its entry points ask for.
 
-- `--xla_cpu_use_fusion_emitters=false`: with jaxlib 0.10.x the CPU fusion emitters make MJX
-  kinematics exponentially slow in the depth of the kinematic tree (jax-ml/jax#33761,
-  google-deepmind/mujoco#2957): a 7-joint arm runs ~500x slower. jaxlib 0.11 no longer knows the
-  flag (an unknown flag in XLA_FLAGS aborts the process), so it is added for jaxlib < 0.11 only.
-- `--xla_force_host_platform_device_count=N`: XLA runs one CPU device's program on one core, so a
-  batch of MJX environments on one device uses one core however many the machine has. With N host
-  devices `mjx_push.batch.PushBatch` splits its environments over them (`mjx_push.devices`) and the
-  physics runs on N cores at once (1.7x on 2 cores, `benchmarks/sim_speed.py`). N is the number of
+- `--xla_cpu_use_fusion_emitters=false`, added when `mjx_push` is imported (before jax starts): with
+  jaxlib 0.10.x the CPU fusion emitters make MJX kinematics exponentially slow in the depth of the
+  kinematic tree (jax-ml/jax#33761, google-deepmind/mujoco#2957): a 7-joint arm runs ~500x slower.
+  jaxlib 0.11 no longer knows the flag (an unknown flag in XLA_FLAGS aborts the process), so it is added
+  for jaxlib < 0.11 only.
+- `--xla_force_host_platform_device_count=N`, added only by `use_cpu_devices()`, which the entry points
+  call (the `mjx-push` command, `benchmarks/`, the test suite): XLA runs one CPU device's program on one
+  core, so a batch of MJX environments on one device uses one core however many the machine has. With N
+  host devices `mjx_push.batch.PushBatch` splits its environments over them (`mjx_push.devices`) and
+  the physics runs on N cores at once (1.7x on 2 cores, `benchmarks/sim_speed.py`). N is the number of
   cores this process may use, capped at 8; `MJX_PUSH_CPU_DEVICES=N` overrides it (1 turns the split
-  off). Only the CPU platform is affected: on a GPU machine the environments run on the GPU.
+  off). A program that only imports the package keeps its own `jax.device_count()`; it can call
+  `mjx_push.xla.use_cpu_devices()` itself, first. Only the CPU platform is affected.
 
-Importing this module (every package entry point does, first) adds each flag unless the user already
-set it either way in their own XLA_FLAGS.
+Either flag is left alone when the user's own XLA_FLAGS already sets it either way.
 """
 
 import importlib.metadata
 import os
+import sys
 from mjx_push.errors import ConfigError
 
 FLAG = "--xla_cpu_use_fusion_emitters"
@@ -56,13 +59,32 @@ def needs_fusion_flag() -> bool:
     return line is None or line < (0, 11)
 
 
-def apply_cpu_flags() -> None:
+def apply_fusion_flag() -> None:
+    """Add the fusion-emitter flag to XLA_FLAGS where the jaxlib line needs it (run on import)."""
     flags = os.environ.get("XLA_FLAGS", "")
     if FLAG not in flags and needs_fusion_flag():
-        flags += f" {FLAG}=false"
-    if DEVICE_FLAG not in flags:
-        flags += f" {DEVICE_FLAG}={cpu_device_count()}"
-    os.environ["XLA_FLAGS"] = flags.strip()
+        os.environ["XLA_FLAGS"] = f"{flags} {FLAG}=false".strip()
 
 
-apply_cpu_flags()
+def _backend_started() -> bool:
+    bridge = sys.modules.get("jax._src.xla_bridge")
+    started = getattr(bridge, "backends_are_initialized", None)
+    return bool(started and started())
+
+
+def use_cpu_devices(n: int | None = None) -> int | None:
+    """Ask XLA for `n` CPU devices (default `cpu_device_count()`), so batches split over the cores.
+    Call it before anything starts JAX's backend (the first `jax.devices()`, array or compilation);
+    spawned worker processes inherit it through the environment. Returns the count asked for, or None
+    when nothing changed: the user's XLA_FLAGS already sets a count, or the backend has started."""
+    flags = os.environ.get("XLA_FLAGS", "")
+    if DEVICE_FLAG in flags or _backend_started():
+        return None
+    n = cpu_device_count() if n is None else n
+    if n < 1:
+        raise ConfigError(f"use_cpu_devices: the device count must be >= 1, got {n}")
+    os.environ["XLA_FLAGS"] = f"{flags} {DEVICE_FLAG}={n}".strip()
+    return n
+
+
+apply_fusion_flag()

@@ -5,7 +5,9 @@ import os
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-import mjx_push  # noqa: E402,F401  (applies the CPU XLA flag before jax starts)
+import mjx_push  # noqa: E402  (applies the CPU XLA flag before jax starts)
+
+mjx_push.xla.use_cpu_devices()  # as the command line does: one CPU device per core (test_batch splits over 2)
 import jax  # noqa: E402
 import pytest  # noqa: E402
 

@@ -1,6 +1,8 @@
 """The CPU XLA flags and the command line's compilation cache (no compilation here)."""
 
 import os
+import subprocess
+import sys
 
 import jax
 import pytest
@@ -23,13 +25,32 @@ def test_cpu_device_count_reads_the_override_and_rejects_nonsense(monkeypatch):
 def test_flags_are_added_once_and_a_users_own_setting_wins(monkeypatch):
     monkeypatch.setenv("XLA_FLAGS", f"{xla.DEVICE_FLAG}=5")
     monkeypatch.setenv(xla.DEVICES_ENV, "2")
-    xla.apply_cpu_flags()
+    xla.apply_fusion_flag()
+    assert xla.use_cpu_devices() is None  # the user's own count
     flags = os.environ["XLA_FLAGS"]
     assert f"{xla.DEVICE_FLAG}=5" in flags and flags.count(xla.DEVICE_FLAG) == 1
     # The fusion-emitter flag where the installed jaxlib has it (0.10 line); jaxlib 0.11 aborts on it.
     assert (f"{xla.FLAG}=false" in flags) == xla.needs_fusion_flag()
-    xla.apply_cpu_flags()
+    xla.apply_fusion_flag()
     assert os.environ["XLA_FLAGS"] == flags
+    # This process's backend started long ago: asking now would change nothing, so nothing is written.
+    monkeypatch.setenv("XLA_FLAGS", "")
+    jax.devices()
+    assert xla.use_cpu_devices() is None and os.environ["XLA_FLAGS"] == ""
+
+
+def test_importing_the_package_leaves_the_device_count_to_the_program():
+    """`import mjx_push` keeps jax.device_count() (a library must not change it); use_cpu_devices() before
+    jax starts splits the CPU into the devices asked for."""
+    code = ("import sys, mjx_push, jax\n"
+            "if sys.argv[1] == 'ask': assert mjx_push.xla.use_cpu_devices(3) == 3\n"
+            "print(jax.device_count(), '--xla_cpu_use_fusion_emitters' in __import__('os').environ['XLA_FLAGS'])")
+    env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", xla.DEVICES_ENV)}
+    env["JAX_PLATFORMS"] = "cpu"
+    for arg, want in (("import", "1"), ("ask", "3")):
+        r = subprocess.run([sys.executable, "-c", code, arg], env=env, capture_output=True, text=True, timeout=300)
+        assert r.returncode == 0, r.stderr[-2000:]
+        assert r.stdout.split() == [want, str(xla.needs_fusion_flag())], (arg, r.stdout)
 
 
 def test_the_fusion_flag_follows_the_jaxlib_line(monkeypatch):
