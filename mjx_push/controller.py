@@ -18,12 +18,15 @@ from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from mujoco import mjx
 
 from mjx_push import scene
 from mjx_push.errors import ConfigError
 
-C_AXIS = jnp.array([0.0, 0.0, -1.0])
+# A NumPy constant: a jnp array here would start JAX's backend on import, before an entry point could
+# choose the CPU device count (mjx_push.xla.use_cpu_devices).
+C_AXIS = np.array([0.0, 0.0, -1.0])
 
 
 @dataclass(frozen=True)
