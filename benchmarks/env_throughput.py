@@ -51,7 +51,7 @@ def measure(num_envs: int, steps: int, seed: int = 0) -> list[dict]:
             else:
                 a = a.at[:, 2].set(a_s_value(int(mode)))
             state = jax.block_until_ready(batch.jit_step(state, a))
-            n = state.info("substeps")
+            n = state.info["substeps"]
             useful += int(jnp.sum(n))
             executed += int(sum(int(jnp.max(p)) * p.shape[0] for p in batch._split(n)))
         dt = time.perf_counter() - t0
@@ -59,7 +59,7 @@ def measure(num_envs: int, steps: int, seed: int = 0) -> list[dict]:
             dict(num_envs=num_envs, a_s=mode, reset_compile_s=round(reset_compile, 2),
                  step_compile_s=round(step_compile, 2), env_steps_per_s=round(steps * num_envs / dt, 2),
                  useful_substeps_per_s=round(useful / dt, 1), executed_substeps_per_s=round(executed / dt, 1),
-                 utilisation=round(useful / executed, 4), invalid=int(jnp.sum(state.info("invalid_count"))))
+                 utilisation=round(useful / executed, 4), invalid=int(jnp.sum(state.info["invalid_count"])))
         )
     return rows
 

@@ -96,7 +96,7 @@ def measure_mjx(env_config, num_envs: int, steps: int, chunk: int, max_devices: 
         rows.append({"simulator": "MJX", "mode": mode, "devices": batch.num_devices, "compile_s": first - dt,
                      "wall_s": dt, "useful_substeps": useful, "useful_substeps_per_s": useful / dt,
                      "env_steps_per_s": num_envs * steps / dt,
-                     "invalid_steps": int(jnp.sum(out.info("invalid_count")))})
+                     "invalid_steps": int(jnp.sum(out.info["invalid_count"]))})
     return rows
 
 

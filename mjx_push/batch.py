@@ -22,6 +22,9 @@ environment its next action as soon as its step is done.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from typing import Any
+
 import jax
 import jax.numpy as jnp
 from brax.envs.base import State
@@ -56,11 +59,31 @@ class BatchState:
     def done(self):
         return self.cat(lambda s: s.done)
 
-    def info(self, key: str):
-        return self.cat(lambda s: s.info[key])
+    # brax's State fields over the whole batch, read as there: `state.info["object_xy"]`. An entry is
+    # concatenated when read (not the whole dict: the groups' MJX `initial_data` differ in structure).
+    @property
+    def info(self) -> Mapping[str, Any]:
+        return _Concatenated(self, "info")
 
-    def metric(self, key: str):
-        return self.cat(lambda s: s.metrics[key])
+    @property
+    def metrics(self) -> Mapping[str, Any]:
+        return _Concatenated(self, "metrics")
+
+
+class _Concatenated(Mapping):
+    """A read-only view of one dict field of every group's State, each entry concatenated on reading."""
+
+    def __init__(self, state: BatchState, field: str):
+        self._state, self._field = state, field
+
+    def __getitem__(self, key: str):
+        return self._state.cat(lambda s: getattr(s, self._field)[key])
+
+    def __iter__(self):
+        return iter(getattr(self._state.groups[0], self._field))
+
+    def __len__(self) -> int:
+        return len(getattr(self._state.groups[0], self._field))
 
 
 class PushBatch:
@@ -135,7 +158,7 @@ class PushBatch:
 
     def ready(self, state: BatchState) -> jax.Array:
         """[N] bool: the environment has spent its current step's substeps."""
-        return state.info("substeps_left") == 0
+        return state.info["substeps_left"] == 0
 
     def finish(self, state: BatchState, mask: jax.Array) -> BatchState:
         """Finish the current step (observation, reward, validity) where `mask` is True."""

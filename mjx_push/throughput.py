@@ -32,7 +32,7 @@ def run(config: EnvConfig, num_envs: int, steps: int, seed: int, out: Path, prog
         key, k = jax.random.split(key)
         actions = jax.random.uniform(k, (num_envs, 3), minval=-1.0, maxval=1.0)
         state = jax.block_until_ready(batch.jit_step(state, actions))
-        n = int(jnp.sum(state.info("substeps")))
+        n = int(jnp.sum(state.info["substeps"]))
         if i == 0:
             first = state
             t_run = time.perf_counter()
@@ -49,8 +49,8 @@ def run(config: EnvConfig, num_envs: int, steps: int, seed: int, out: Path, prog
         "env_steps": steps,
         "compile_and_first_step_s": round(compile_s, 2),
         "substeps_per_s": round(substeps / run_s, 1) if steps > 1 else None,
-        "invalid": int(jnp.sum(state.info("invalid_count"))),
-        "success_final": float(jnp.mean(state.metric("success"))),
+        "invalid": int(jnp.sum(state.info["invalid_count"])),
+        "success_final": float(jnp.mean(state.metrics["success"])),
         "masks_png": str(out / "masks.png"),
     }
     (out / "demo.json").write_text(json.dumps(stats, indent=2))

@@ -33,13 +33,13 @@ def test_groups_and_concatenation(batch):
     states = rollout(batch, 0, 1)
     s = states[-1]
     assert s.obs["object_mask"].shape == (4, 64, 64) and s.obs["ee_xy"].shape == (4, 2)
-    assert s.reward.shape == (4,) and s.info("goal_xy").shape == (4, 2)
+    assert s.reward.shape == (4,) and s.info["goal_xy"].shape == (4, 2)
     # Box group first: its geom sizes have three non-zero half extents, cylinders a zero third entry.
-    size = np.asarray(s.info("params").size)
+    size = np.asarray(s.info["params"].size)
     assert np.all(size[:2, 2] > 0) and np.all(size[2:, 2] == 0)
-    np.testing.assert_array_equal(np.asarray(s.info("step")), [1, 1, 1, 1])
+    np.testing.assert_array_equal(np.asarray(s.info["step"]), [1, 1, 1, 1])
     # Observation: the noisy flange xy is within a few noise std of the truth.
-    assert np.all(np.abs(np.asarray(s.obs["ee_xy"] - s.info("ee_xy_true"))) < 1e-3)
+    assert np.all(np.abs(np.asarray(s.obs["ee_xy"] - s.info["ee_xy_true"])) < 1e-3)
 
 
 def test_same_key_same_trajectory_bitwise(batch):
@@ -48,7 +48,7 @@ def test_same_key_same_trajectory_bitwise(batch):
         for x, y in zip(jax.tree.leaves(sa), jax.tree.leaves(sb)):
             np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
     c = rollout(batch, 4, 1)
-    assert not np.array_equal(np.asarray(c[0].info("goal_xy")), np.asarray(a[0].info("goal_xy")))
+    assert not np.array_equal(np.asarray(c[0].info["goal_xy"]), np.asarray(a[0].info["goal_xy"]))
 
 
 def test_step_phases_in_chunks_give_the_steps_result(batch):
@@ -69,10 +69,10 @@ def test_step_phases_in_chunks_give_the_steps_result(batch):
         done = np.asarray(ready(s)) & ~finished
         s = finish(s, jnp.asarray(done))
         finished |= done
-    np.testing.assert_array_equal(np.asarray(s.info("substeps")), n)
-    for get in (lambda x: x.obs["ee_xy"], lambda x: x.obs["object_mask"], lambda x: x.info("object_xy"),
-                lambda x: x.info("ee_xy_true"), lambda x: x.info("step"), lambda x: x.reward,
-                lambda x: x.info("corrections").distance):
+    np.testing.assert_array_equal(np.asarray(s.info["substeps"]), n)
+    for get in (lambda x: x.obs["ee_xy"], lambda x: x.obs["object_mask"], lambda x: x.info["object_xy"],
+                lambda x: x.info["ee_xy_true"], lambda x: x.info["step"], lambda x: x.reward,
+                lambda x: x.info["corrections"].distance):
         np.testing.assert_allclose(np.asarray(get(s), np.float64), np.asarray(get(want), np.float64), atol=1e-6)
 
 
@@ -144,10 +144,10 @@ def test_the_batch_is_split_over_the_host_devices_and_steps_as_on_one(batch):
     np.testing.assert_allclose(np.asarray(a.cat(lambda s: s.pipeline_state.qpos)),
                                np.asarray(b.cat(lambda s: s.pipeline_state.qpos)), atol=1e-5)
     for key in ("object_xy", "ee_xy_true", "substeps", "step"):
-        np.testing.assert_allclose(np.asarray(a.info(key)), np.asarray(b.info(key)), atol=1e-5)
+        np.testing.assert_allclose(np.asarray(a.info[key]), np.asarray(b.info[key]), atol=1e-5)
     np.testing.assert_array_equal(np.asarray(a.reward), np.asarray(b.reward))
     assert np.mean(np.asarray(a.obs["object_mask"]) != np.asarray(b.obs["object_mask"])) < 0.005
-    moved = np.abs(np.asarray(split[-1].info("ee_xy_true") - split[0].info("ee_xy_true")))
+    moved = np.abs(np.asarray(split[-1].info["ee_xy_true"] - split[0].info["ee_xy_true"]))
     assert moved.max() > 1e-4  # the arms moved: the comparison is of a real step
 
 

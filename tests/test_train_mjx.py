@@ -40,7 +40,7 @@ def test_adapter_latents_are_the_encoder_of_the_masks(encoder_file):
     @jax.jit
     def reset(key):  # one compile: the adapter's outputs and the environment state they came from
         s, obs, info = adapter.reset(key, 2)
-        return obs, info, s.obs["object_mask"], s.obs["goal_mask"], s.info("object_xy"), s.info("goal_xy")
+        return obs, info, s.obs["object_mask"], s.obs["goal_mask"], s.info["object_xy"], s.info["goal_xy"]
 
     obs, info, object_mask, goal_mask, object_xy, goal_xy = reset(jax.random.PRNGKey(3))
     assert object_mask.sum() > 0 and goal_mask.sum() > 0

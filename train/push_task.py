@@ -41,14 +41,14 @@ PRIV = _slices()
 
 def privileged_state(s: BatchState, is_box: jax.Array) -> jax.Array:
     """[N, PRIV_DIM] ground truth of every environment (never observed by the actor)."""
-    params = s.info("params")
-    yaw = s.info("object_yaw")
+    params = s.info["params"]
+    yaw = s.info["object_yaw"]
     parts = {
-        "object_xy": s.info("object_xy"),
+        "object_xy": s.info["object_xy"],
         "object_yaw_cos_sin": jnp.stack([jnp.cos(yaw), jnp.sin(yaw)], -1),
-        "object_vel": s.info("object_vel"),
-        "ee_xy": s.info("ee_xy_true"),
-        "ee_vel": s.info("ee_vel"),
+        "object_vel": s.info["object_vel"],
+        "ee_xy": s.info["ee_xy_true"],
+        "ee_vel": s.info["ee_vel"],
         "size": params.size,
         "is_box": is_box.astype(jnp.float32)[:, None],
         "log_mass": jnp.log(params.mass)[:, None],
@@ -98,7 +98,7 @@ def make_push_adapter(env_config: EnvConfig, encoder_params, substep_chunk: int 
     def observe(s: BatchState) -> dict:
         obs = s.obs
         return {"ee_xy": obs["ee_xy"], "z_obj": enc.encode(encoder_params, obs["object_mask"]),
-                "obj_xy": s.info("object_xy"), "priv": privileged_state(s, is_box(s))}
+                "obj_xy": s.info["object_xy"], "priv": privileged_state(s, is_box(s))}
 
     def expert(step_obs: dict, info: dict) -> jax.Array:
         gt = expert_ground_truth(step_obs["priv"], info["goal_xy"])
@@ -106,12 +106,12 @@ def make_push_adapter(env_config: EnvConfig, encoder_params, substep_chunk: int 
 
     def reset(key: jax.Array, num_envs: int, episodes: dict | None = None):
         s = batch(num_envs).reset(key, episodes)
-        info = {"z_goal": enc.encode(encoder_params, s.obs["goal_mask"]), "goal_xy": s.info("goal_xy")}
+        info = {"z_goal": enc.encode(encoder_params, s.obs["goal_mask"]), "goal_xy": s.info["goal_xy"]}
         return s, observe(s), info
 
     def step(s: BatchState, action: jax.Array):
         s = batch(action.shape[0]).step(s, action)
-        return s, observe(s), s.info("episode_invalid")
+        return s, observe(s), s.info["episode_invalid"]
 
     def begin(s: BatchState, action: jax.Array, mask: jax.Array) -> BatchState:
         return batch(action.shape[0]).begin(s, action, mask)
@@ -124,7 +124,7 @@ def make_push_adapter(env_config: EnvConfig, encoder_params, substep_chunk: int 
 
     def finish(s: BatchState, mask: jax.Array):
         s = batch(mask.shape[0]).finish(s, mask)
-        return s, observe(s), s.info("episode_invalid")
+        return s, observe(s), s.info["episode_invalid"]
 
     def eval_episodes(setting: str, seed: int, chunk: int, num_envs: int) -> dict:
         """Chunk `chunk` of the protocol's episodes (train.evaluate.episode_objects) of `setting` and
