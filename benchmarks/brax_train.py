@@ -54,34 +54,66 @@ def main() -> None:
         from brax.training.agents.ppo import train as ppo
 
         train_fn = functools.partial(
-            ppo.train, num_timesteps=args.timesteps, episode_length=L, num_envs=args.num_envs,
-            num_eval_envs=args.num_envs, num_evals=args.evals, unroll_length=10, batch_size=args.num_envs,
-            num_minibatches=4, num_updates_per_batch=4, learning_rate=3e-4, entropy_cost=1e-3, discounting=0.95,
-            normalize_observations=True, bootstrap_on_timeout=True, seed=args.seed)
+            ppo.train,
+            num_timesteps=args.timesteps,
+            episode_length=L,
+            num_envs=args.num_envs,
+            num_eval_envs=args.num_envs,
+            num_evals=args.evals,
+            unroll_length=10,
+            batch_size=args.num_envs,
+            num_minibatches=4,
+            num_updates_per_batch=4,
+            learning_rate=3e-4,
+            entropy_cost=1e-3,
+            discounting=0.95,
+            normalize_observations=True,
+            bootstrap_on_timeout=True,
+            seed=args.seed,
+        )
     else:
         from brax.training.agents.sac import train as sac
 
         train_fn = functools.partial(
-            sac.train, num_timesteps=args.timesteps, episode_length=L, num_envs=args.num_envs,
-            num_eval_envs=args.num_envs, num_evals=args.evals, learning_rate=1e-3, discounting=0.95, tau=0.05,
-            batch_size=256, min_replay_size=min(2_000, args.timesteps // 2), max_replay_size=args.timesteps,
-            grad_updates_per_step=1, normalize_observations=True, seed=args.seed)
+            sac.train,
+            num_timesteps=args.timesteps,
+            episode_length=L,
+            num_envs=args.num_envs,
+            num_eval_envs=args.num_envs,
+            num_evals=args.evals,
+            learning_rate=1e-3,
+            discounting=0.95,
+            tau=0.05,
+            batch_size=256,
+            min_replay_size=min(2_000, args.timesteps // 2),
+            max_replay_size=args.timesteps,
+            grad_updates_per_step=1,
+            normalize_observations=True,
+            seed=args.seed,
+        )
 
     rows, t0 = [], time.perf_counter()
 
     def progress(steps, metrics):
-        row = {"env_steps": int(steps), "wall_s": time.perf_counter() - t0,
-               "eval_reward": float(metrics.get("eval/episode_reward", float("nan"))),
-               "eval_steps_at_goal": float(metrics.get("eval/episode_success", float("nan"))),
-               "eval_mean_distance": float(metrics.get("eval/episode_distance", float("nan"))) / L}
+        row = {
+            "env_steps": int(steps),
+            "wall_s": time.perf_counter() - t0,
+            "eval_reward": float(metrics.get("eval/episode_reward", float("nan"))),
+            "eval_steps_at_goal": float(metrics.get("eval/episode_success", float("nan"))),
+            "eval_mean_distance": float(metrics.get("eval/episode_distance", float("nan"))) / L,
+        }
         rows.append(row)
-        console.print(f"  {row['env_steps']:>8,} env steps  {row['wall_s']:6.0f} s  eval reward "
-                      f"{row['eval_reward']:.2f}, steps at goal {row['eval_steps_at_goal']:.2f}, "
-                      f"mean distance {100 * row['eval_mean_distance']:.1f} cm")
+        console.print(
+            f"  {row['env_steps']:>8,} env steps  {row['wall_s']:6.0f} s  eval reward "
+            f"{row['eval_reward']:.2f}, steps at goal {row['eval_steps_at_goal']:.2f}, "
+            f"mean distance {100 * row['eval_mean_distance']:.1f} cm"
+        )
 
-    console.print(f"[bold]brax {args.algo}[/] on BraxPushEnv ({args.observation} observations, {args.reward} "
-                  f"reward, substeps {config.substeps}): {args.timesteps:,} env steps, {args.num_envs} envs; "
-                  f"backend {jax.default_backend()} (the first evaluation includes compilation)")
+    console.print(
+        f"[bold]brax {args.algo}[/] on BraxPushEnv ({args.observation} observations, {args.reward} "
+        f"reward, substeps {config.substeps}): {args.timesteps:,} env steps, {args.num_envs} envs; "
+        f"backend {jax.default_backend()} (the first evaluation includes compilation)"
+    )
     _, _, _ = train_fn(environment=env, progress_fn=progress)
     wall = time.perf_counter() - t0
 
@@ -89,8 +121,13 @@ def main() -> None:
     for col in ("env steps", "wall s", "eval reward", "steps at goal", "mean distance (cm)"):
         table.add_column(col, justify="right")
     for r in rows:
-        table.add_row(f"{r['env_steps']:,}", f"{r['wall_s']:.0f}", f"{r['eval_reward']:.2f}",
-                      f"{r['eval_steps_at_goal']:.2f}", f"{100 * r['eval_mean_distance']:.1f}")
+        table.add_row(
+            f"{r['env_steps']:,}",
+            f"{r['wall_s']:.0f}",
+            f"{r['eval_reward']:.2f}",
+            f"{r['eval_steps_at_goal']:.2f}",
+            f"{100 * r['eval_mean_distance']:.1f}",
+        )
     console.print(table)
     # Throughput after compilation: between the first and the last evaluation.
     sps = None
@@ -99,9 +136,20 @@ def main() -> None:
         console.print(f"throughput after the first evaluation: {sps:,.0f} env steps/s (evaluations included)")
     console.print(f"wall time {wall:.0f} s in all")
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"args": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
-                                    "substeps": list(config.substeps), "curve": rows, "wall_s": wall,
-                                    "env_steps_per_s": sps, "backend": jax.default_backend()}, indent=2) + "\n")
+    args.out.write_text(
+        json.dumps(
+            {
+                "args": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
+                "substeps": list(config.substeps),
+                "curve": rows,
+                "wall_s": wall,
+                "env_steps_per_s": sps,
+                "backend": jax.default_backend(),
+            },
+            indent=2,
+        )
+        + "\n"
+    )
     console.print(f"written {args.out}")
 
 

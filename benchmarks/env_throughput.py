@@ -56,10 +56,17 @@ def measure(num_envs: int, steps: int, seed: int = 0) -> list[dict]:
             executed += int(sum(int(jnp.max(p)) * p.shape[0] for p in batch._split(n)))
         dt = time.perf_counter() - t0
         rows.append(
-            dict(num_envs=num_envs, a_s=mode, reset_compile_s=round(reset_compile, 2),
-                 step_compile_s=round(step_compile, 2), env_steps_per_s=round(steps * num_envs / dt, 2),
-                 useful_substeps_per_s=round(useful / dt, 1), executed_substeps_per_s=round(executed / dt, 1),
-                 utilisation=round(useful / executed, 4), invalid=int(jnp.sum(state.info["invalid_count"])))
+            dict(
+                num_envs=num_envs,
+                a_s=mode,
+                reset_compile_s=round(reset_compile, 2),
+                step_compile_s=round(step_compile, 2),
+                env_steps_per_s=round(steps * num_envs / dt, 2),
+                useful_substeps_per_s=round(useful / dt, 1),
+                executed_substeps_per_s=round(executed / dt, 1),
+                utilisation=round(useful / executed, 4),
+                invalid=int(jnp.sum(state.info["invalid_count"])),
+            )
         )
     return rows
 

@@ -42,31 +42,61 @@ def main(argv=None):
         env = policy.config.env
         for setting, shape in CASES:
             t0 = time.perf_counter()
-            res = evaluate(policy, EvalSpec(setting=setting, shape=shape, episodes=args.episodes,
-                                            batch=min(args.batch, args.episodes)))
+            res = evaluate(
+                policy,
+                EvalSpec(setting=setting, shape=shape, episodes=args.episodes, batch=min(args.batch, args.episodes)),
+            )
             per = res["per_episode"]
             ok = ~per["invalid"].astype(bool)
             final = per["final_distance"]
-            rows.append({
-                "preset": preset, "action_scale": env.action_scale, "gain": env.controller.gain,
-                "substeps": list(env.substeps), "setting": setting, "shape": shape, "episodes": args.episodes,
-                **{f"success_{c}cm": float(np.mean(ok & (final < c / 100))) for c in (1, 2, 5)},
-                "median_final_mm": float(np.median(final) * 1000), "worst_final_mm": float(np.max(final) * 1000),
-                "overshoot": float(np.mean(per["overshoot"])), "distance": float(np.mean(per["distance"])),
-                "mean_substeps_per_step": float(np.mean(per["mean_substeps"])), "invalid": int(np.sum(~ok)),
-                "wall_s": time.perf_counter() - t0,
-            })
+            rows.append(
+                {
+                    "preset": preset,
+                    "action_scale": env.action_scale,
+                    "gain": env.controller.gain,
+                    "substeps": list(env.substeps),
+                    "setting": setting,
+                    "shape": shape,
+                    "episodes": args.episodes,
+                    **{f"success_{c}cm": float(np.mean(ok & (final < c / 100))) for c in (1, 2, 5)},
+                    "median_final_mm": float(np.median(final) * 1000),
+                    "worst_final_mm": float(np.max(final) * 1000),
+                    "overshoot": float(np.mean(per["overshoot"])),
+                    "distance": float(np.mean(per["distance"])),
+                    "mean_substeps_per_step": float(np.mean(per["mean_substeps"])),
+                    "invalid": int(np.sum(~ok)),
+                    "wall_s": time.perf_counter() - t0,
+                }
+            )
             console.print(rows[-1])
     table = Table(title=f"scripted expert, {args.episodes} episodes per case (evaluation seeds)")
-    for col in ("preset (box)", "setting", "shape", "1 cm", "2 cm", "5 cm", "median / worst final", "corrections o/d",
-                "substeps/step", "wall"):
+    for col in (
+        "preset (box)",
+        "setting",
+        "shape",
+        "1 cm",
+        "2 cm",
+        "5 cm",
+        "median / worst final",
+        "corrections o/d",
+        "substeps/step",
+        "wall",
+    ):
         table.add_column(col, justify="right")
     for r in rows:
         box = f"{r['preset']} (+-{r['action_scale']} m, gain {r['gain']:g}, {r['substeps'][0]}-{r['substeps'][1]})"
-        table.add_row(box, r["setting"], r["shape"], f"{r['success_1cm']:.0%}", f"{r['success_2cm']:.0%}",
-                      f"{r['success_5cm']:.0%}", f"{r['median_final_mm']:.1f} / {r['worst_final_mm']:.1f} mm",
-                      f"{r['overshoot']:.2f} / {r['distance']:.2f}", f"{r['mean_substeps_per_step']:.0f}",
-                      f"{r['wall_s']:.0f} s")
+        table.add_row(
+            box,
+            r["setting"],
+            r["shape"],
+            f"{r['success_1cm']:.0%}",
+            f"{r['success_2cm']:.0%}",
+            f"{r['success_5cm']:.0%}",
+            f"{r['median_final_mm']:.1f} / {r['worst_final_mm']:.1f} mm",
+            f"{r['overshoot']:.2f} / {r['distance']:.2f}",
+            f"{r['mean_substeps_per_step']:.0f}",
+            f"{r['wall_s']:.0f} s",
+        )
     console.print(table)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps({"rows": rows}, indent=2) + "\n")

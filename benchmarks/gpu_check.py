@@ -49,9 +49,28 @@ FULL = dict(sizes=[2048, 8192, 4096, 1024], preset="paper", learn_seconds=150.0,
 
 # Distributions whose versions decide what ran: the image's (JAX and its CUDA plugin, flax, ...) and the
 # ones carried as wheels (MuJoCo, MJX, brax, ...).
-PACKAGES = ("jax", "jaxlib", "jax-cuda13-plugin", "jax-cuda13-pjrt", "jax-cuda12-plugin", "jax-cuda12-pjrt",
-            "mujoco", "mujoco-mjx", "brax", "flax", "optax", "orbax-checkpoint", "numpy", "ml-dtypes", "scipy",
-            "gymnasium", "tyro", "rich", "tensorboardX", "mjx-push")
+PACKAGES = (
+    "jax",
+    "jaxlib",
+    "jax-cuda13-plugin",
+    "jax-cuda13-pjrt",
+    "jax-cuda12-plugin",
+    "jax-cuda12-pjrt",
+    "mujoco",
+    "mujoco-mjx",
+    "brax",
+    "flax",
+    "optax",
+    "orbax-checkpoint",
+    "numpy",
+    "ml-dtypes",
+    "scipy",
+    "gymnasium",
+    "tyro",
+    "rich",
+    "tensorboardX",
+    "mjx-push",
+)
 MODULES = ("jax", "jaxlib", "mujoco", "brax", "flax", "optax", "orbax.checkpoint", "numpy", "mjx_push", "train")
 
 
@@ -74,11 +93,20 @@ def versions() -> tuple[dict, dict]:
 def machine() -> dict:
     dev = jax.devices()[0]
     vers, where = versions()
-    return {"backend": jax.default_backend(), "device": str(dev), "device_kind": dev.device_kind,
-            "devices": len(jax.devices()), "host": f"{platform.machine()}, {os.cpu_count()} cores",
-            "jax": jax.__version__, "python": platform.python_version(), "interpreter": sys.executable,
-            "pythonpath": os.environ.get("PYTHONPATH", ""), "xla_flags": os.environ.get("XLA_FLAGS", ""),
-            "packages": vers, "imported_from": where}
+    return {
+        "backend": jax.default_backend(),
+        "device": str(dev),
+        "device_kind": dev.device_kind,
+        "devices": len(jax.devices()),
+        "host": f"{platform.machine()}, {os.cpu_count()} cores",
+        "jax": jax.__version__,
+        "python": platform.python_version(),
+        "interpreter": sys.executable,
+        "pythonpath": os.environ.get("PYTHONPATH", ""),
+        "xla_flags": os.environ.get("XLA_FLAGS", ""),
+        "packages": vers,
+        "imported_from": where,
+    }
 
 
 def env_stage(cfg, sizes: list[int], steps: int, deadline: float, rows: list[dict], save) -> None:
@@ -89,12 +117,22 @@ def env_stage(cfg, sizes: list[int], steps: int, deadline: float, rows: list[dic
             save()
             continue
         (r,) = measure_mjx(cfg.env, n, steps, 50, None, jax.random.PRNGKey(n), modes=("scheduled",))
-        rows.append({"num_envs": n, "devices": r["devices"], "compile_s": r["compile_s"],
-                     "useful_substeps_per_s": r["useful_substeps_per_s"], "env_steps_per_s": r["env_steps_per_s"],
-                     "wall_s": r["wall_s"]})
+        rows.append(
+            {
+                "num_envs": n,
+                "devices": r["devices"],
+                "compile_s": r["compile_s"],
+                "useful_substeps_per_s": r["useful_substeps_per_s"],
+                "env_steps_per_s": r["env_steps_per_s"],
+                "wall_s": r["wall_s"],
+            }
+        )
         save()
-        print(f"env {n}: {r['useful_substeps_per_s']:,.0f} substeps/s, {r['env_steps_per_s']:,.0f} env steps/s, "
-              f"compile {r['compile_s']:.0f} s", flush=True)
+        print(
+            f"env {n}: {r['useful_substeps_per_s']:,.0f} substeps/s, {r['env_steps_per_s']:,.0f} env steps/s, "
+            f"compile {r['compile_s']:.0f} s",
+            flush=True,
+        )
 
 
 def train_stages(cfg, learn_seconds: float, deadline: float, save) -> tuple[dict, dict]:
@@ -114,24 +152,42 @@ def train_stages(cfg, learn_seconds: float, deadline: float, save) -> tuple[dict
         batches.append({"rollout_s": m["rollout_s"], "learn_s": m["learn_s"], "learning": bool(m["learning"])})
     steps_per_batch = loop.env_steps_per_iteration
     updates_per_batch = loop.updates_per_iteration
-    train = {"num_envs": loop.num_envs, "env_steps_per_batch": steps_per_batch, "updates_per_batch": updates_per_batch,
-             "first_batch_s": first, **first_parts, "timed_batches": len(batches)}
+    train = {
+        "num_envs": loop.num_envs,
+        "env_steps_per_batch": steps_per_batch,
+        "updates_per_batch": updates_per_batch,
+        "first_batch_s": first,
+        **first_parts,
+        "timed_batches": len(batches),
+    }
     learning = [b for b in batches if b["learning"]]  # warm-up batches make no updates
     if learning:
         roll = float(np.median([b["rollout_s"] for b in learning]))
         learn = float(np.median([b["learn_s"] for b in learning]))
-        train.update(learning_batches=len(learning), rollout_s=roll, learn_s=learn,
-                     env_steps_per_s=steps_per_batch / (roll + learn), rollout_env_steps_per_s=steps_per_batch / roll,
-                     updates_per_s=updates_per_batch / learn)
+        train.update(
+            learning_batches=len(learning),
+            rollout_s=roll,
+            learn_s=learn,
+            env_steps_per_s=steps_per_batch / (roll + learn),
+            rollout_env_steps_per_s=steps_per_batch / roll,
+            updates_per_s=updates_per_batch / learn,
+        )
     print(f"train: first batch {first:.0f} s, {len(batches)} more batches", flush=True)
     if time.perf_counter() > deadline:
         return train, {"skipped": "time budget spent"}
     t0 = time.perf_counter()
     stats = jax.block_until_ready(runner.evaluate(ts.sac.actor_params))
-    learn = {"env_steps": int(ts.env_steps), "episodes": loop.eval_episodes, "eval_s": time.perf_counter() - t0,
-             **{k: float(v) for k, v in stats.items() if np.ndim(v) == 0}}
-    print(f"learn: after {learn['env_steps']} env steps, within 1 / 5 cm {learn['success_1cm']:.2f} / "
-          f"{learn['success_5cm']:.2f}, final distance {learn['final_distance']:.3f} m", flush=True)
+    learn = {
+        "env_steps": int(ts.env_steps),
+        "episodes": loop.eval_episodes,
+        "eval_s": time.perf_counter() - t0,
+        **{k: float(v) for k, v in stats.items() if np.ndim(v) == 0},
+    }
+    print(
+        f"learn: after {learn['env_steps']} env steps, within 1 / 5 cm {learn['success_1cm']:.2f} / "
+        f"{learn['success_5cm']:.2f}, final distance {learn['final_distance']:.3f} m",
+        flush=True,
+    )
     return train, learn
 
 

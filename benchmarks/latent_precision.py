@@ -49,10 +49,14 @@ def draw(key: jax.Array, n: int) -> dict:
     cyl = jax.vmap(lambda k: objects.sample(k, cfg, "cylinder", home).size)(jax.random.split(k_cyl, n))
     r = cfg.pose_range
     angle = jax.random.uniform(k_dir, (n,), minval=-jnp.pi, maxval=jnp.pi)
-    return {"is_box": jax.random.bernoulli(k_shape, 0.5, (n,)), "box": box, "cyl": cyl,
-            "xy": home + jax.random.uniform(k_xy, (n, 2), minval=-r, maxval=r),
-            "yaw": jax.random.uniform(k_yaw, (n,), minval=-jnp.pi, maxval=jnp.pi),
-            "dir": jnp.stack([jnp.cos(angle), jnp.sin(angle)], -1)}
+    return {
+        "is_box": jax.random.bernoulli(k_shape, 0.5, (n,)),
+        "box": box,
+        "cyl": cyl,
+        "xy": home + jax.random.uniform(k_xy, (n, 2), minval=-r, maxval=r),
+        "yaw": jax.random.uniform(k_yaw, (n,), minval=-jnp.pi, maxval=jnp.pi),
+        "dir": jnp.stack([jnp.cos(angle), jnp.sin(angle)], -1),
+    }
 
 
 @jax.jit
@@ -87,9 +91,13 @@ def probe(features: np.ndarray, xy: np.ndarray, train_frac: float = 0.8, ridge: 
     """Held-out error (mm) of a ridge regression from cubic features of `features` to xy."""
     pred, want = fit(features, xy, train_frac, ridge)
     err = np.linalg.norm(pred - want, axis=1) * 1000.0
-    return {"median_mm": float(np.median(err)), "rmse_mm": float(np.sqrt(np.mean(err**2))),
-            "p90_mm": float(np.percentile(err, 90)), "within_10mm": float(np.mean(err < 10.0)),
-            "test_objects": int(len(err))}
+    return {
+        "median_mm": float(np.median(err)),
+        "rmse_mm": float(np.sqrt(np.mean(err**2))),
+        "p90_mm": float(np.percentile(err, 90)),
+        "within_10mm": float(np.mean(err < 10.0)),
+        "test_objects": int(len(err)),
+    }
 
 
 def knn(features: np.ndarray, target: np.ndarray, k: int = 10, train_frac: float = 0.8):
@@ -123,8 +131,11 @@ def probe_size(features: np.ndarray, sides: np.ndarray) -> dict:
     """Held-out error (mm) of the footprint's (larger, smaller) side."""
     pred, want = fit(features, sides)
     err = np.abs(pred - want) * 1000.0
-    return {"median_mm_long": float(np.median(err[:, 0])), "median_mm_short": float(np.median(err[:, 1])),
-            "test_objects": int(len(err))}
+    return {
+        "median_mm_long": float(np.median(err[:, 0])),
+        "median_mm_short": float(np.median(err[:, 1])),
+        "test_objects": int(len(err)),
+    }
 
 
 def measure(encoder_path: Path | None, n: int, seed: int) -> dict:
@@ -146,24 +157,41 @@ def measure(encoder_path: Path | None, n: int, seed: int) -> dict:
         m1 = render(objs, objs["xy"] + objs["dir"] * mm / 1000.0)
         dz = np.linalg.norm(np.asarray(enc(m1)) - z0, axis=1)
         same = np.all(np.asarray(m1) == m0n, axis=(1, 2))
-        shifts.append({"shift_mm": mm, "mask_unchanged": float(same.mean()),
-                       "pixels_changed_median": float(np.median(np.sum(np.asarray(m1) != m0n, axis=(1, 2)))),
-                       "dz_median": float(np.median(dz)),
-                       "dz_over_random_pair": float(np.median(dz) / np.median(random_pair))})
+        shifts.append(
+            {
+                "shift_mm": mm,
+                "mask_unchanged": float(same.mean()),
+                "pixels_changed_median": float(np.median(np.sum(np.asarray(m1) != m0n, axis=(1, 2)))),
+                "dz_median": float(np.median(dz)),
+                "dz_over_random_pair": float(np.median(dz) / np.median(random_pair)),
+            }
+        )
     depth = scene.TABLE_TOP - scene.CAMERA_POS[2]
     is_box = np.asarray(objs["is_box"])
     yaw = np.asarray(objs["yaw"])
     sides = 2.0 * np.sort(np.asarray(objs["box"])[:, :2], axis=1)[:, ::-1]  # full (long, short) footprint
     rect = is_box & (sides[:, 0] - sides[:, 1] >= objects.RECT_MIN_DIFF)
-    per_shape = {name: {"probe_latent": probe(z0[sel], xy[sel]), "probe_mask_centroid": probe(centroid[sel], xy[sel])}
-                 for name, sel in (("cuboid", is_box), ("cylinder", ~is_box))}
+    per_shape = {
+        name: {"probe_latent": probe(z0[sel], xy[sel]), "probe_mask_centroid": probe(centroid[sel], xy[sel])}
+        for name, sel in (("cuboid", is_box), ("cylinder", ~is_box))
+    }
     pixels = m0n.reshape(n, -1).astype(np.float32)
-    cuboid = {"face_yaw_mod_90": probe_angle(z0[is_box], yaw[is_box], 4, pixels[is_box]),
-              "long_side_yaw_mod_180": probe_angle(z0[rect], yaw[rect], 2, pixels[rect]),
-              "footprint": probe_size(z0[is_box], sides[is_box])}
-    return {"objects": n, "seed": seed, "pixel_mm_at_table": float(1000 * depth / masks.FOCAL),
-            "probe_latent": probe(z0, xy), "probe_mask_centroid": probe(centroid, xy), "per_shape": per_shape,
-            "cuboid_pose": cuboid, "random_pair_dz_median": float(np.median(random_pair)), "shifts": shifts}
+    cuboid = {
+        "face_yaw_mod_90": probe_angle(z0[is_box], yaw[is_box], 4, pixels[is_box]),
+        "long_side_yaw_mod_180": probe_angle(z0[rect], yaw[rect], 2, pixels[rect]),
+        "footprint": probe_size(z0[is_box], sides[is_box]),
+    }
+    return {
+        "objects": n,
+        "seed": seed,
+        "pixel_mm_at_table": float(1000 * depth / masks.FOCAL),
+        "probe_latent": probe(z0, xy),
+        "probe_mask_centroid": probe(centroid, xy),
+        "per_shape": per_shape,
+        "cuboid_pose": cuboid,
+        "random_pair_dz_median": float(np.median(random_pair)),
+        "shifts": shifts,
+    }
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -179,8 +207,10 @@ def main(argv: list[str] | None = None) -> int:
     res = measure(args.encoder, args.objects, args.seed)
     res["wall_s"] = time.perf_counter() - t0
     console = Console()
-    console.print(f"mask pixel at the table's height: {res['pixel_mm_at_table']:.1f} mm; "
-                  f"{args.objects} objects, {res['probe_latent']['test_objects']} held out")
+    console.print(
+        f"mask pixel at the table's height: {res['pixel_mm_at_table']:.1f} mm; "
+        f"{args.objects} objects, {res['probe_latent']['test_objects']} held out"
+    )
     t = Table(title="object xy from the observation (held-out error, mm)")
     for c in ("input", "median", "RMSE", "90th pct", "within 10 mm"):
         t.add_column(c, justify="right")
@@ -188,28 +218,60 @@ def main(argv: list[str] | None = None) -> int:
     for shape, d in res["per_shape"].items():
         rows += [(f"{shape}s: latent z", d["probe_latent"]), (f"{shape}s: mask centroid", d["probe_mask_centroid"])]
     for name, p in rows:
-        t.add_row(name, f"{p['median_mm']:.1f}", f"{p['rmse_mm']:.1f}", f"{p['p90_mm']:.1f}",
-                  f"{100 * p['within_10mm']:.0f} %")
+        t.add_row(
+            name,
+            f"{p['median_mm']:.1f}",
+            f"{p['rmse_mm']:.1f}",
+            f"{p['p90_mm']:.1f}",
+            f"{100 * p['within_10mm']:.0f} %",
+        )
     console.print(t)
     c = res["cuboid_pose"]
     t = Table(title="what pushing a cuboid needs beyond its centre, from z (held-out error)")
-    for col in ("quantity", "median (ridge)", "90th pct (ridge)", "median (10-NN)", "mask pixels (10-NN)",
-                "chance median"):
+    for col in (
+        "quantity",
+        "median (ridge)",
+        "90th pct (ridge)",
+        "median (10-NN)",
+        "mask pixels (10-NN)",
+        "chance median",
+    ):
         t.add_column(col, justify="right")
-    for name, key in (("face yaw (mod 90 deg)", "face_yaw_mod_90"), ("long side yaw (mod 180 deg)", "long_side_yaw_mod_180")):
+    for name, key in (
+        ("face yaw (mod 90 deg)", "face_yaw_mod_90"),
+        ("long side yaw (mod 180 deg)", "long_side_yaw_mod_180"),
+    ):
         a = c[key]
-        t.add_row(name, f"{a['ridge_median_deg']:.1f} deg", f"{a['ridge_p90_deg']:.1f} deg",
-                  f"{a['knn_median_deg']:.1f} deg", f"{a['mask_knn_median_deg']:.1f} deg",
-                  f"{a['chance_median_deg']:.1f} deg")
-    t.add_row("footprint long / short side", f"{c['footprint']['median_mm_long']:.1f} / "
-              f"{c['footprint']['median_mm_short']:.1f} mm", "", "", "", "")
+        t.add_row(
+            name,
+            f"{a['ridge_median_deg']:.1f} deg",
+            f"{a['ridge_p90_deg']:.1f} deg",
+            f"{a['knn_median_deg']:.1f} deg",
+            f"{a['mask_knn_median_deg']:.1f} deg",
+            f"{a['chance_median_deg']:.1f} deg",
+        )
+    t.add_row(
+        "footprint long / short side",
+        f"{c['footprint']['median_mm_long']:.1f} / {c['footprint']['median_mm_short']:.1f} mm",
+        "",
+        "",
+        "",
+        "",
+    )
     console.print(t)
-    t = Table(title=f"object moved, same size and yaw (median |z - z'| of random pairs: {res['random_pair_dz_median']:.3f})")
+    t = Table(
+        title=f"object moved, same size and yaw (median |z - z'| of random pairs: {res['random_pair_dz_median']:.3f})"
+    )
     for c in ("shift (mm)", "mask unchanged", "pixels changed (median)", "median |dz|", "|dz| / random pair"):
         t.add_column(c, justify="right")
     for s in res["shifts"]:
-        t.add_row(f"{s['shift_mm']:.0f}", f"{100 * s['mask_unchanged']:.0f} %", f"{s['pixels_changed_median']:.0f}",
-                  f"{s['dz_median']:.4f}", f"{s['dz_over_random_pair']:.3f}")
+        t.add_row(
+            f"{s['shift_mm']:.0f}",
+            f"{100 * s['mask_unchanged']:.0f} %",
+            f"{s['pixels_changed_median']:.0f}",
+            f"{s['dz_median']:.4f}",
+            f"{s['dz_over_random_pair']:.3f}",
+        )
     console.print(t)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(res, indent=2) + "\n")

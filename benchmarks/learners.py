@@ -43,8 +43,11 @@ LEARNERS = ("bc", "sacbc", "anneal")
 
 
 def learner_overrides(learner: str, anneal: tuple[int, int]) -> list[str]:
-    return {"bc": ['train.sac.actor_loss="bc"'], "sacbc": [],
-            "anneal": [f"train.demo.anneal_start={anneal[0]}", f"train.demo.anneal_end={anneal[1]}"]}[learner]
+    return {
+        "bc": ['train.sac.actor_loss="bc"'],
+        "sacbc": [],
+        "anneal": [f"train.demo.anneal_start={anneal[0]}", f"train.demo.anneal_end={anneal[1]}"],
+    }[learner]
 
 
 def score(run_dir: Path, which: str, setting: str, episodes: int) -> dict:
@@ -67,8 +70,14 @@ def main(argv=None):
     ap.add_argument("--learners", nargs="+", default=list(LEARNERS), choices=LEARNERS)
     ap.add_argument("--seeds", nargs="+", type=int, default=[1, 2])
     ap.add_argument("--total-env-steps", type=int, default=28_800)
-    ap.add_argument("--anneal", nargs=2, type=int, default=[9_600, 22_400], metavar=("START", "END"),
-                    help="env steps over which the annealed learner's teacher falls to 0")
+    ap.add_argument(
+        "--anneal",
+        nargs=2,
+        type=int,
+        default=[9_600, 22_400],
+        metavar=("START", "END"),
+        help="env steps over which the annealed learner's teacher falls to 0",
+    )
     ap.add_argument("--episodes", type=int, default=100, help="test episodes per actor and setting")
     ap.add_argument("--no-train", action="store_true", help="score the finished runs only")
     ap.add_argument("--out", type=Path, default=Path("outputs/learners"))
@@ -80,25 +89,60 @@ def main(argv=None):
         for seed in args.seeds:
             run_dir = args.out / f"{args.rung}-{learner}-s{seed}"
             if not args.no_train:
-                ladder.main(["--rungs", args.rung, "--seeds", str(seed), "--total-env-steps",
-                             str(args.total_env_steps), "--eval-episodes", "0", "--out", str(args.out),
-                             "--tag", learner] + (["--set", *learner_overrides(learner, args.anneal)]
-                                                 if learner_overrides(learner, args.anneal) else []))
+                ladder.main(
+                    [
+                        "--rungs",
+                        args.rung,
+                        "--seeds",
+                        str(seed),
+                        "--total-env-steps",
+                        str(args.total_env_steps),
+                        "--eval-episodes",
+                        "0",
+                        "--out",
+                        str(args.out),
+                        "--tag",
+                        learner,
+                    ]
+                    + (
+                        ["--set", *learner_overrides(learner, args.anneal)]
+                        if learner_overrides(learner, args.anneal)
+                        else []
+                    )
+                )
             if not (run_dir / "summary.json").is_file():
                 console.print(f"[yellow]{run_dir} has not finished: skipped")
                 continue
             summary = json.loads((run_dir / "summary.json").read_text())
-            row = {"learner": learner, "seed": seed, "run_dir": str(run_dir), "env_steps": summary["env_steps"],
-                   "train_wall_s": summary["wall_s"], "best_env_steps": summary["best_env_steps"]}
+            row = {
+                "learner": learner,
+                "seed": seed,
+                "run_dir": str(run_dir),
+                "env_steps": summary["env_steps"],
+                "train_wall_s": summary["wall_s"],
+                "best_env_steps": summary["best_env_steps"],
+            }
             for which in ("best_policy", "final_policy"):
                 for setting in ("standard", "difficult"):
                     row[f"{which}/{setting}"] = score(run_dir, which, setting, args.episodes)
             rows.append(row)
 
-    table = Table(title=f"learners on {args.rung}, {args.total_env_steps:,} env steps, {args.episodes} test "
-                        "episodes per actor and setting (mean over seeds; per seed in brackets)")
-    for col in ("learner", "actor", "setting", "1 cm %", "1 cm cuboids", "1 cm cylinders", "5 cm %", "overshoot corr.",
-                "distance corr.", "final distance (cm)"):
+    table = Table(
+        title=f"learners on {args.rung}, {args.total_env_steps:,} env steps, {args.episodes} test "
+        "episodes per actor and setting (mean over seeds; per seed in brackets)"
+    )
+    for col in (
+        "learner",
+        "actor",
+        "setting",
+        "1 cm %",
+        "1 cm cuboids",
+        "1 cm cylinders",
+        "5 cm %",
+        "overshoot corr.",
+        "distance corr.",
+        "final distance (cm)",
+    ):
         table.add_column(col, justify="right")
     for learner in args.learners:
         mine = [r for r in rows if r["learner"] == learner]
@@ -113,15 +157,36 @@ def main(argv=None):
                     f = lambda a: f"{scale * a:.{digits}f}"  # noqa: E731
                     return f"{f(np.mean(v))} ({', '.join(f(a) for a in v)})"
 
-                table.add_row(learner, which.split("_")[0], setting, cell("success_1cm"), cell("success_1cm_cuboid"),
-                              cell("success_1cm_cylinder"), cell("success_5cm"), cell("overshoot", 1.0, 2),
-                              cell("distance", 1.0, 2), cell("final_distance", 100.0, 1))
+                table.add_row(
+                    learner,
+                    which.split("_")[0],
+                    setting,
+                    cell("success_1cm"),
+                    cell("success_1cm_cuboid"),
+                    cell("success_1cm_cylinder"),
+                    cell("success_5cm"),
+                    cell("overshoot", 1.0, 2),
+                    cell("distance", 1.0, 2),
+                    cell("final_distance", 100.0, 1),
+                )
     console.print(table)
     args.out.mkdir(parents=True, exist_ok=True)
     out = args.out / "learners.json"
-    out.write_text(json.dumps({"machine": platform.processor() or platform.machine(), "backend": jax.default_backend(),
-                               "rung": args.rung, "total_env_steps": args.total_env_steps, "anneal": args.anneal,
-                               "episodes": args.episodes, "runs": rows}, indent=2) + "\n")
+    out.write_text(
+        json.dumps(
+            {
+                "machine": platform.processor() or platform.machine(),
+                "backend": jax.default_backend(),
+                "rung": args.rung,
+                "total_env_steps": args.total_env_steps,
+                "anneal": args.anneal,
+                "episodes": args.episodes,
+                "runs": rows,
+            },
+            indent=2,
+        )
+        + "\n"
+    )
     console.print(f"written {out}")
 
 

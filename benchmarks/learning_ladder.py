@@ -39,8 +39,11 @@ from train.evaluate import EvalSpec, evaluate
 # model's radius: HER's rewards and the success rate), the others at the paper's 1 cm; every rung
 # reports success within 1, 2 and 5 cm. Budgets are fixed here, not taken from the presets, so a rung
 # means the same run whatever the presets become.
-_BUDGET = {"train.loop.total_env_steps": 64_000, "train.loop.eval_every_env_steps": 8_000,
-           "train.loop.eval_episodes": 64}
+_BUDGET = {
+    "train.loop.total_env_steps": 64_000,
+    "train.loop.eval_every_env_steps": 8_000,
+    "train.loop.eval_episodes": 64,
+}
 _5CM = {"env.success_tau": 0.05, "train.replay.success_tau": 0.05}
 RUNGS: dict[str, tuple[str, str, dict]] = {
     "vpm-5cm": ("vpm", "cpu", {**_BUDGET, **_5CM}),
@@ -59,9 +62,16 @@ def curve(run_dir: Path) -> list[dict]:
     with (run_dir / "metrics.csv").open() as f:
         rows = [r for r in csv.DictReader(f) if r.get("eval/mean_reward")]
     keys = ["eval/success_rate", "eval/final_distance", "eval/start_distance"] + [
-        f"eval/success_{round(r * 100)}cm" for r in RADII]
-    return [{"env_steps": int(float(r["env_steps"])), "wall_s": float(r["wall_s"]),
-             **{k.split("/")[1]: float(r[k]) for k in keys if r.get(k) not in (None, "")}} for r in rows]
+        f"eval/success_{round(r * 100)}cm" for r in RADII
+    ]
+    return [
+        {
+            "env_steps": int(float(r["env_steps"])),
+            "wall_s": float(r["wall_s"]),
+            **{k.split("/")[1]: float(r[k]) for k in keys if r.get(k) not in (None, "")},
+        }
+        for r in rows
+    ]
 
 
 def score(run_dir: Path, which: str, episodes: int, setting: str = "standard") -> dict:
@@ -72,10 +82,14 @@ def score(run_dir: Path, which: str, episodes: int, setting: str = "standard") -
     per = res["per_episode"]
     ok = ~per["invalid"].astype(bool)
     out = {f"success_{round(r * 100)}cm": float(np.mean(ok & (per["final_distance"] < r))) for r in RADII}
-    out.update(start_distance=float(np.mean(per["start_distance"])),
-               final_distance=float(np.mean(per["final_distance"])),
-               overshoot=float(np.mean(per["overshoot"])), distance=float(np.mean(per["distance"])),
-               invalid=int(np.sum(~ok)), trained_tau=env.success_tau)
+    out.update(
+        start_distance=float(np.mean(per["start_distance"])),
+        final_distance=float(np.mean(per["final_distance"])),
+        overshoot=float(np.mean(per["overshoot"])),
+        distance=float(np.mean(per["distance"])),
+        invalid=int(np.sum(~ok)),
+        trained_tau=env.success_tau,
+    )
     for shape, pick in (("cuboid", 0), ("cylinder", 1)):  # the protocol's "all": even episodes are cuboids
         idx = np.arange(len(ok)) % 2 == pick
         out[f"success_1cm_{shape}"] = float(np.mean(ok[idx] & (per["final_distance"][idx] < 0.01)))
@@ -86,12 +100,21 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--rungs", nargs="+", default=["vpm-5cm", "vpm-1cm", "egru-1cm"], choices=sorted(RUNGS))
     ap.add_argument("--seeds", nargs="+", type=int, default=[0])
-    ap.add_argument("--set", nargs="*", default=[], metavar="PATH=VALUE",
-                    help="override for every rung, e.g. train.sac.bc_weight=0 (values parsed as JSON)")
+    ap.add_argument(
+        "--set",
+        nargs="*",
+        default=[],
+        metavar="PATH=VALUE",
+        help="override for every rung, e.g. train.sac.bc_weight=0 (values parsed as JSON)",
+    )
     ap.add_argument("--tag", default="", help="names this variant in run directories and the JSON")
     ap.add_argument("--total-env-steps", type=int, default=None, help="shorter budget than the rung's preset")
-    ap.add_argument("--eval-episodes", type=int, default=100,
-                    help="episodes per final scoring (0: skip it, keep the learning curve)")
+    ap.add_argument(
+        "--eval-episodes",
+        type=int,
+        default=100,
+        help="episodes per final scoring (0: skip it, keep the learning curve)",
+    )
     ap.add_argument("--out", type=Path, default=Path("outputs/ladder"))
     args = ap.parse_args(argv)
     try:
@@ -110,22 +133,34 @@ def main(argv=None):
             run_dir = args.out / f"{name}{suffix}-s{seed}"
             if not (run_dir / "summary.json").is_file():
                 resume = (run_dir / "checkpoints").is_dir() and any((run_dir / "checkpoints").iterdir())
-                console.print(f"[bold]{name}{suffix} seed {seed}[/]: {cfg.train.loop.total_env_steps:,} env steps "
-                              f"-> {run_dir}" + (" (resuming)" if resume else ""))
+                console.print(
+                    f"[bold]{name}{suffix} seed {seed}[/]: {cfg.train.loop.total_env_steps:,} env steps "
+                    f"-> {run_dir}" + (" (resuming)" if resume else "")
+                )
 
                 def log(m):
                     if "eval/mean_reward" in m:
-                        console.print(f"  {int(m['env_steps']):>8,} steps {m['wall_s']:7.0f} s: success 1/2/5 cm "
-                                      f"{m['eval/success_1cm']:.0%}/{m['eval/success_2cm']:.0%}/"
-                                      f"{m['eval/success_5cm']:.0%}, final distance "
-                                      f"{100 * m['eval/final_distance']:.1f} cm")
+                        console.print(
+                            f"  {int(m['env_steps']):>8,} steps {m['wall_s']:7.0f} s: success 1/2/5 cm "
+                            f"{m['eval/success_1cm']:.0%}/{m['eval/success_2cm']:.0%}/"
+                            f"{m['eval/success_5cm']:.0%}, final distance "
+                            f"{100 * m['eval/final_distance']:.1f} cm"
+                        )
 
                 run_mod.run(cfg, run_dir, resume=resume, on_iteration=log)
             summary = json.loads((run_dir / "summary.json").read_text())
-            row = {"rung": name, "tag": args.tag, "seed": seed, "agent": cfg.agent, "preset": cfg.preset,
-                   "overrides": {**RUNGS[name][2], **extra}, "env_steps": summary["env_steps"],
-                   "updates": summary["updates"], "train_wall_s": summary["wall_s"],
-                   "curve": curve(run_dir)}
+            row = {
+                "rung": name,
+                "tag": args.tag,
+                "seed": seed,
+                "agent": cfg.agent,
+                "preset": cfg.preset,
+                "overrides": {**RUNGS[name][2], **extra},
+                "env_steps": summary["env_steps"],
+                "updates": summary["updates"],
+                "train_wall_s": summary["wall_s"],
+                "curve": curve(run_dir),
+            }
             if args.eval_episodes:
                 t_eval = time.perf_counter()
                 for which in ("best_policy", "final_policy"):
@@ -144,16 +179,34 @@ def main(argv=None):
                 continue
             s = r[which]
             label = "best (difficult)" if which.endswith("difficult") else which.split("_")[0]
-            table.add_row(r["rung"] + suffix, str(r["seed"]), f"{r['env_steps']:,}", f"{r['train_wall_s'] / 60:.1f} min",
-                          label, f"{s['success_1cm']:.0%}", f"{s['success_2cm']:.0%}",
-                          f"{s['success_5cm']:.0%}", f"{100 * s['start_distance']:.1f} -> {100 * s['final_distance']:.1f} cm")
+            table.add_row(
+                r["rung"] + suffix,
+                str(r["seed"]),
+                f"{r['env_steps']:,}",
+                f"{r['train_wall_s'] / 60:.1f} min",
+                label,
+                f"{s['success_1cm']:.0%}",
+                f"{s['success_2cm']:.0%}",
+                f"{s['success_5cm']:.0%}",
+                f"{100 * s['start_distance']:.1f} -> {100 * s['final_distance']:.1f} cm",
+            )
     console.print(table)
     args.out.mkdir(parents=True, exist_ok=True)
     out = args.out / f"ladder{suffix}.json"
     previous = json.loads(out.read_text())["runs"] if out.is_file() else []
     keep = [p for p in previous if (p["rung"], p["seed"]) not in {(r["rung"], r["seed"]) for r in results}]
-    out.write_text(json.dumps({"machine": platform.processor() or platform.machine(), "backend": jax.default_backend(),
-                               "devices": jax.device_count(), "runs": keep + results}, indent=2) + "\n")
+    out.write_text(
+        json.dumps(
+            {
+                "machine": platform.processor() or platform.machine(),
+                "backend": jax.default_backend(),
+                "devices": jax.device_count(),
+                "runs": keep + results,
+            },
+            indent=2,
+        )
+        + "\n"
+    )
     console.print(f"written {out}")
 
 

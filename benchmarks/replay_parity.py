@@ -48,8 +48,11 @@ def parse(argv=None) -> argparse.Namespace:
     ap.add_argument("--seed", type=int, default=777)
     ap.add_argument("--batch", type=int, default=20)
     ap.add_argument("--x64", action="store_true", help="MJX in float64")
-    ap.add_argument("--contacts", action="store_true",
-                    help="also compare both engines' contacts at each episode's first rod-object contact")
+    ap.add_argument(
+        "--contacts",
+        action="store_true",
+        help="also compare both engines' contacts at each episode's first rod-object contact",
+    )
     ap.add_argument("--iterations", type=int, help="solver iterations in both simulators (default: the config's)")
     ap.add_argument("--ls-iterations", type=int, help="line-search iterations in both (default: the config's)")
     ap.add_argument("--out", type=Path, default=Path("outputs/bench_replay_parity.json"))
@@ -98,9 +101,18 @@ def replay(cfg, rec: dict) -> dict:
         fl.append(float(np.linalg.norm(flange(q_cpu) - flange(q_mjx))))
         subs.append(info["substeps"] == int(rec["substeps"][t]))
     moved = float(np.linalg.norm(qpos_mjx[-1][a : a + 2] - qpos_mjx[0][a : a + 2]))
-    return {"episode": rec["episode"], "geom_type": rec["geom_type"], "start_diff": start, "object": obj,
-            "yaw": yaw, "flange": fl, "same_substeps": bool(all(subs)), "object_moved": moved,
-            "object_first": first_over(obj, OBJECT_TOL), "flange_first": first_over(fl, FLANGE_TOL)}
+    return {
+        "episode": rec["episode"],
+        "geom_type": rec["geom_type"],
+        "start_diff": start,
+        "object": obj,
+        "yaw": yaw,
+        "flange": fl,
+        "same_substeps": bool(all(subs)),
+        "object_moved": moved,
+        "object_first": first_over(obj, OBJECT_TOL),
+        "flange_first": first_over(fl, FLANGE_TOL),
+    }
 
 
 def first_contact(cfg, rec: dict, forward) -> dict | None:
@@ -119,8 +131,14 @@ def first_contact(cfg, rec: dict, forward) -> dict | None:
     pair = {ids.rod_geom, ids.object_geom}
     v = slice(ids.object_qvel, ids.object_qvel + 3)
     for t, action in enumerate(np.asarray(rec["action"], np.float64)):
-        env.target = flange_target(d.site_xpos[ids.flange_site][:2], action[:2], cfg.env.action_scale,
-                                   cfg.env.workspace_x, cfg.env.workspace_y, env.home_flange[2])
+        env.target = flange_target(
+            d.site_xpos[ids.flange_site][:2],
+            action[:2],
+            cfg.env.action_scale,
+            cfg.env.workspace_x,
+            cfg.env.workspace_y,
+            env.home_flange[2],
+        )
         for k in range(decode_substeps(action[2], cfg.env.substeps)):
             env.run_substeps(1)
             mujoco.mj_forward(m, d)  # contacts at the current positions (mj_step's are from before it)
@@ -132,12 +150,22 @@ def first_contact(cfg, rec: dict, forward) -> dict | None:
             geom, dist = np.asarray(con.geom), np.asarray(con.dist)
             active = [i for i in range(len(dist)) if set(geom[i].tolist()) == pair and dist[i] < 0]
             acc_cpu, acc_mjx = d.qacc[v].copy(), np.asarray(dm.qacc)[v]
-            return {"step": t + 1, "substep": k + 1, "cpu_contacts": len(c_cpu), "mjx_contacts": len(active),
-                    "cpu_depth": float(-min(c.dist for c in c_cpu)),
-                    "mjx_depth": float(-dist[active].min()) if active else 0.0,
-                    "normal_angle_deg": float(np.degrees(np.arccos(np.clip(abs(np.dot(
-                        c_cpu[0].frame[:3], np.asarray(con.frame)[active[0]][0])), 0, 1)))) if active else None,
-                    "object_acc_rel_diff": float(np.linalg.norm(acc_mjx - acc_cpu) / max(np.linalg.norm(acc_cpu), 1e-9))}
+            return {
+                "step": t + 1,
+                "substep": k + 1,
+                "cpu_contacts": len(c_cpu),
+                "mjx_contacts": len(active),
+                "cpu_depth": float(-min(c.dist for c in c_cpu)),
+                "mjx_depth": float(-dist[active].min()) if active else 0.0,
+                "normal_angle_deg": float(
+                    np.degrees(
+                        np.arccos(np.clip(abs(np.dot(c_cpu[0].frame[:3], np.asarray(con.frame)[active[0]][0])), 0, 1))
+                    )
+                )
+                if active
+                else None,
+                "object_acc_rel_diff": float(np.linalg.norm(acc_mjx - acc_cpu) / max(np.linalg.norm(acc_cpu), 1e-9)),
+            }
     return None
 
 
@@ -148,12 +176,16 @@ def contact_summary(found: list[dict]) -> dict:
         return {"episodes": 0}
     missed = [f for f in found if f["mjx_contacts"] == 0]
     seen = [f for f in found if f["mjx_contacts"] > 0]
-    return {"episodes": len(found), "mjx_misses_the_contact": len(missed) / len(found),
-            "same_contact_count": float(np.mean([f["mjx_contacts"] == f["cpu_contacts"] for f in found])),
-            "depth_diff_median_mm": float(np.median([1e3 * abs(f["mjx_depth"] - f["cpu_depth"]) for f in seen]))
-            if seen else None,
-            "normal_angle_median_deg": float(np.median([f["normal_angle_deg"] for f in seen])) if seen else None,
-            "object_acc_rel_diff_median": float(np.median([f["object_acc_rel_diff"] for f in seen])) if seen else None}
+    return {
+        "episodes": len(found),
+        "mjx_misses_the_contact": len(missed) / len(found),
+        "same_contact_count": float(np.mean([f["mjx_contacts"] == f["cpu_contacts"] for f in found])),
+        "depth_diff_median_mm": float(np.median([1e3 * abs(f["mjx_depth"] - f["cpu_depth"]) for f in seen]))
+        if seen
+        else None,
+        "normal_angle_median_deg": float(np.median([f["normal_angle_deg"] for f in seen])) if seen else None,
+        "object_acc_rel_diff_median": float(np.median([f["object_acc_rel_diff"] for f in seen])) if seen else None,
+    }
 
 
 def summarize(rows: list[dict]) -> dict:
@@ -166,20 +198,35 @@ def summarize(rows: list[dict]) -> dict:
     order = {"flange": 0, "object": 0, "same step": 0, "neither": 0}
     for r in rows:
         o, f = r["object_first"], r["flange_first"]
-        key = ("neither" if o is None and f is None else "object" if f is None or (o is not None and o < f)
-               else "flange" if o is None or f < o else "same step")
+        key = (
+            "neither"
+            if o is None and f is None
+            else "object"
+            if f is None or (o is not None and o < f)
+            else "flange"
+            if o is None or f < o
+            else "same step"
+        )
         order[key] += 1
-    return {"episodes": len(rows), "within_1mm": float(np.mean(final < OBJECT_TOL)),
-            "final_object_diff_m": {"median": float(np.median(final)), "p95": float(np.percentile(final, 95)),
-                                    "max": float(final.max())},
-            "final_yaw_diff_deg": {"median": float(np.median(yaw)), "p95": float(np.percentile(yaw, 95))},
-            "object_parts_at_step": {"episodes": len(obj_first),
-                                     "median": float(np.median(obj_first)) if obj_first else None},
-            "flange_parts_at_step": {"episodes": len(fl_first),
-                                     "median": float(np.median(fl_first)) if fl_first else None},
-            "parts_first": order, "same_substeps": float(np.mean([r["same_substeps"] for r in rows])),
-            "start_diff_max": float(max(r["start_diff"] for r in rows)),
-            "object_moved_median_m": float(np.median([r["object_moved"] for r in rows]))}
+    return {
+        "episodes": len(rows),
+        "within_1mm": float(np.mean(final < OBJECT_TOL)),
+        "final_object_diff_m": {
+            "median": float(np.median(final)),
+            "p95": float(np.percentile(final, 95)),
+            "max": float(final.max()),
+        },
+        "final_yaw_diff_deg": {"median": float(np.median(yaw)), "p95": float(np.percentile(yaw, 95))},
+        "object_parts_at_step": {
+            "episodes": len(obj_first),
+            "median": float(np.median(obj_first)) if obj_first else None,
+        },
+        "flange_parts_at_step": {"episodes": len(fl_first), "median": float(np.median(fl_first)) if fl_first else None},
+        "parts_first": order,
+        "same_substeps": float(np.mean([r["same_substeps"] for r in rows])),
+        "start_diff_max": float(max(r["start_diff"] for r in rows)),
+        "object_moved_median_m": float(np.median([r["object_moved"] for r in rows])),
+    }
 
 
 def main(argv=None) -> None:
@@ -205,20 +252,30 @@ def main(argv=None) -> None:
     if a.iterations or a.ls_iterations:
         import dataclasses
 
-        solver = dataclasses.replace(cfg.env.solver, **{k: v for k, v in (("iterations", a.iterations),
-                                                                         ("ls_iterations", a.ls_iterations)) if v})
+        solver = dataclasses.replace(
+            cfg.env.solver, **{k: v for k, v in (("iterations", a.iterations), ("ls_iterations", a.ls_iterations)) if v}
+        )
         cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, solver=solver))
         policy = dataclasses.replace(policy, config=cfg)
-    spec = EvalSpec(setting=a.setting, shape="all", episodes=a.episodes, seed=a.seed,
-                    batch=min(a.batch, a.episodes), record=a.episodes)
+    spec = EvalSpec(
+        setting=a.setting,
+        shape="all",
+        episodes=a.episodes,
+        seed=a.seed,
+        batch=min(a.batch, a.episodes),
+        record=a.episodes,
+    )
     t0 = time.perf_counter()
     recorded = evaluate(policy, spec)["recorded"]
     t_mjx = time.perf_counter() - t0
     t0 = time.perf_counter()
     rows = [replay(cfg, rec) for rec in recorded]
     t_cpu = time.perf_counter() - t0
-    groups = {"all": rows, "box": [r for r in rows if r["geom_type"] == "box"],
-              "cylinder": [r for r in rows if r["geom_type"] == "cylinder"]}
+    groups = {
+        "all": rows,
+        "box": [r for r in rows if r["geom_type"] == "box"],
+        "cylinder": [r for r in rows if r["geom_type"] == "cylinder"],
+    }
     summary = {k: summarize(v) for k, v in groups.items() if v}
     if a.contacts:
         forward = jax.jit(__import__("mujoco.mjx", fromlist=["forward"]).forward)
@@ -229,33 +286,65 @@ def main(argv=None) -> None:
             if v:
                 summary[k]["first_contact"] = contact_summary([r["first_contact"] for r in v if r["first_contact"]])
 
-    title = (f"open-loop replay, {a.policy}, {a.episodes} {a.setting} episodes (seed {a.seed}), "
-             f"MJX {'float64' if a.x64 else 'float32'} vs CPU MuJoCo float64, solver {cfg.env.solver.iterations} / "
-             f"{cfg.env.solver.ls_iterations} iterations")
+    title = (
+        f"open-loop replay, {a.policy}, {a.episodes} {a.setting} episodes (seed {a.seed}), "
+        f"MJX {'float64' if a.x64 else 'float32'} vs CPU MuJoCo float64, solver {cfg.env.solver.iterations} / "
+        f"{cfg.env.solver.ls_iterations} iterations"
+    )
     table = Table(title=title)
-    for col in ("shape", "eps", "within 1 mm", "final diff median / p95 / max (mm)", "yaw median / p95 (deg)",
-                "object parts (eps, median step)", "flange parts (eps, median step)", "parts first f/o/same/none"):
+    for col in (
+        "shape",
+        "eps",
+        "within 1 mm",
+        "final diff median / p95 / max (mm)",
+        "yaw median / p95 (deg)",
+        "object parts (eps, median step)",
+        "flange parts (eps, median step)",
+        "parts first f/o/same/none",
+    ):
         table.add_column(col, justify="right")
     for k, s in summary.items():
-        f, y, o, fl, p = (s["final_object_diff_m"], s["final_yaw_diff_deg"], s["object_parts_at_step"],
-                          s["flange_parts_at_step"], s["parts_first"])
-        table.add_row(k, str(s["episodes"]), f"{s['within_1mm']:.0%}",
-                      f"{1e3 * f['median']:.3f} / {1e3 * f['p95']:.2f} / {1e3 * f['max']:.1f}",
-                      f"{y['median']:.2f} / {y['p95']:.1f}", f"{o['episodes']}, {o['median']}",
-                      f"{fl['episodes']}, {fl['median']}",
-                      f"{p['flange']}/{p['object']}/{p['same step']}/{p['neither']}")
+        f, y, o, fl, p = (
+            s["final_object_diff_m"],
+            s["final_yaw_diff_deg"],
+            s["object_parts_at_step"],
+            s["flange_parts_at_step"],
+            s["parts_first"],
+        )
+        table.add_row(
+            k,
+            str(s["episodes"]),
+            f"{s['within_1mm']:.0%}",
+            f"{1e3 * f['median']:.3f} / {1e3 * f['p95']:.2f} / {1e3 * f['max']:.1f}",
+            f"{y['median']:.2f} / {y['p95']:.1f}",
+            f"{o['episodes']}, {o['median']}",
+            f"{fl['episodes']}, {fl['median']}",
+            f"{p['flange']}/{p['object']}/{p['same step']}/{p['neither']}",
+        )
     console.print(table)
     for k, s in summary.items():
         if "first_contact" in s:
             console.print(f"first rod-object contact, {k}: {json.dumps(s['first_contact'])}")
-    console.print(f"start states differ by at most {summary['all']['start_diff_max']:.2e}; same substeps in "
-                  f"{summary['all']['same_substeps']:.0%} of episodes; objects moved "
-                  f"{100 * summary['all']['object_moved_median_m']:.1f} cm (median); MJX {t_mjx:.0f} s "
-                  f"(compile included), CPU {t_cpu:.0f} s")
+    console.print(
+        f"start states differ by at most {summary['all']['start_diff_max']:.2e}; same substeps in "
+        f"{summary['all']['same_substeps']:.0%} of episodes; objects moved "
+        f"{100 * summary['all']['object_moved_median_m']:.1f} cm (median); MJX {t_mjx:.0f} s "
+        f"(compile included), CPU {t_cpu:.0f} s"
+    )
     a.out.parent.mkdir(parents=True, exist_ok=True)
-    a.out.write_text(json.dumps({"args": {k: str(v) for k, v in vars(a).items()}, "summary": summary,
-                                 "episodes": rows, "wall_s": {"mjx": t_mjx, "cpu": t_cpu},
-                                 "argv": sys.argv}, indent=1) + "\n")
+    a.out.write_text(
+        json.dumps(
+            {
+                "args": {k: str(v) for k, v in vars(a).items()},
+                "summary": summary,
+                "episodes": rows,
+                "wall_s": {"mjx": t_mjx, "cpu": t_cpu},
+                "argv": sys.argv,
+            },
+            indent=1,
+        )
+        + "\n"
+    )
     console.print(f"written {a.out}")
 
 

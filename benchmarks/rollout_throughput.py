@@ -34,8 +34,9 @@ from train.push_task import make_push_adapter
 def measure(num_envs: int, chunk: int, repeats: int, agent: str) -> list[dict]:
     cfg = presets.make(agent, "cpu", 0)
     loop = dataclasses.replace(cfg.train.loop, num_envs=num_envs)
-    trainer = make_train(dataclasses.replace(cfg.train, loop=loop),
-                         make_push_adapter(cfg.env, enc.load(None), substep_chunk=chunk))
+    trainer = make_train(
+        dataclasses.replace(cfg.train, loop=loop), make_push_adapter(cfg.env, enc.load(None), substep_chunk=chunk)
+    )
     actor = trainer.init(jax.random.PRNGKey(0)).sac.actor_params
     rollout = jax.jit(trainer.rollout)
     rows = []
@@ -50,11 +51,22 @@ def measure(num_envs: int, chunk: int, repeats: int, agent: str) -> list[dict]:
             episodes, _ = jax.block_until_ready(rollout(*args(i + 1)))
             times.append(time.perf_counter() - t0)
         a_s = episodes["action"][..., 2]
-        substeps = jnp.floor((jnp.clip(a_s, -1, 1) + 1) / 2 * (cfg.env.substeps[1] - cfg.env.substeps[0])) + cfg.env.substeps[0]
+        substeps = (
+            jnp.floor((jnp.clip(a_s, -1, 1) + 1) / 2 * (cfg.env.substeps[1] - cfg.env.substeps[0]))
+            + cfg.env.substeps[0]
+        )
         best = min(times)
-        rows.append({"num_envs": num_envs, "chunk": chunk, "actions": label, "first_call_s": first,
-                     "rollout_s": best, "env_steps_per_s": num_envs * loop.episode_len / best,
-                     "substeps_per_env_step": float(substeps.mean())})
+        rows.append(
+            {
+                "num_envs": num_envs,
+                "chunk": chunk,
+                "actions": label,
+                "first_call_s": first,
+                "rollout_s": best,
+                "env_steps_per_s": num_envs * loop.episode_len / best,
+                "substeps_per_env_step": float(substeps.mean()),
+            }
+        )
     return rows
 
 
@@ -77,13 +89,21 @@ def main(argv=None) -> None:
     for r in rows:
         ref = base.get((r["num_envs"], r["actions"]))
         r["speedup_vs_lockstep"] = ref / r["rollout_s"] if ref else None
-        table.add_row(str(r["num_envs"]), str(r["chunk"] or "lockstep"), r["actions"], f"{r['first_call_s']:.1f}",
-                      f"{r['rollout_s']:.2f}", f"{r['env_steps_per_s']:.1f}", f"{r['substeps_per_env_step']:.0f}",
-                      f"{r['speedup_vs_lockstep']:.2f}x" if r["speedup_vs_lockstep"] else "-")
+        table.add_row(
+            str(r["num_envs"]),
+            str(r["chunk"] or "lockstep"),
+            r["actions"],
+            f"{r['first_call_s']:.1f}",
+            f"{r['rollout_s']:.2f}",
+            f"{r['env_steps_per_s']:.1f}",
+            f"{r['substeps_per_env_step']:.0f}",
+            f"{r['speedup_vs_lockstep']:.2f}x" if r["speedup_vs_lockstep"] else "-",
+        )
     Console(width=140).print(table)
     a.out.parent.mkdir(parents=True, exist_ok=True)
-    a.out.write_text(json.dumps({"machine": f"{platform.machine()}, jax {jax.default_backend()}",
-                                 "rows": rows}, indent=2) + "\n")
+    a.out.write_text(
+        json.dumps({"machine": f"{platform.machine()}, jax {jax.default_backend()}", "rows": rows}, indent=2) + "\n"
+    )
     print(f"wrote {a.out}")
 
 

@@ -48,8 +48,11 @@ def evaluate(model, env: MjxPushGymEnv, episodes: int) -> dict:
         success.append(float(info["is_success"]))
         reward.append(total)
         final.append(float(info["distance"]))
-    return {"success_rate": float(np.mean(success)), "mean_reward": float(np.mean(reward)),
-            "final_distance": float(np.mean(final))}
+    return {
+        "success_rate": float(np.mean(success)),
+        "mean_reward": float(np.mean(reward)),
+        "final_distance": float(np.mean(final)),
+    }
 
 
 def main() -> None:
@@ -79,10 +82,20 @@ def main() -> None:
         jax_curve = read_training(args.jax_run)
     env = MjxPushGymEnv(config, mask_source="analytic")
     eval_env = MjxPushGymEnv(config, mask_source="analytic")
-    model = SAC("MultiInputPolicy", env, replay_buffer_class=HerReplayBuffer,
-                learning_rate=1e-3, buffer_size=max(args.steps, 10_000), batch_size=256, tau=0.05, gamma=0.95,
-                learning_starts=args.learning_starts, policy_kwargs={"net_arch": [128, 256, 64]},
-                seed=args.seed, verbose=0)
+    model = SAC(
+        "MultiInputPolicy",
+        env,
+        replay_buffer_class=HerReplayBuffer,
+        learning_rate=1e-3,
+        buffer_size=max(args.steps, 10_000),
+        batch_size=256,
+        tau=0.05,
+        gamma=0.95,
+        learning_starts=args.learning_starts,
+        policy_kwargs={"net_arch": [128, 256, 64]},
+        seed=args.seed,
+        verbose=0,
+    )
     curve = [{"env_steps": 0, **evaluate(model, eval_env, args.eval_episodes), "wall_s": 0.0}]
     t0 = time.perf_counter()
     train_s = 0.0
@@ -91,38 +104,63 @@ def main() -> None:
         t = time.perf_counter()
         model.learn(total_timesteps=n, reset_num_timesteps=False)
         train_s += time.perf_counter() - t
-        row = {"env_steps": model.num_timesteps, **evaluate(model, eval_env, args.eval_episodes),
-               "wall_s": time.perf_counter() - t0}
+        row = {
+            "env_steps": model.num_timesteps,
+            **evaluate(model, eval_env, args.eval_episodes),
+            "wall_s": time.perf_counter() - t0,
+        }
         curve.append(row)
-        console.print(f"  SB3 {row['env_steps']:>6} env steps: success {row['success_rate']:.0%}, "
-                      f"reward {row['mean_reward']:.1f}, final distance {100 * row['final_distance']:.1f} cm")
+        console.print(
+            f"  SB3 {row['env_steps']:>6} env steps: success {row['success_rate']:.0%}, "
+            f"reward {row['mean_reward']:.1f}, final distance {100 * row['final_distance']:.1f} cm"
+        )
 
     table = Table(title=f"SB3 SAC + HER on MjxPush-v0 (CPU MuJoCo, {args.eval_episodes} evaluation episodes)")
     for col in ("env steps", "success", "mean reward", "final dist (cm)", "wall s"):
         table.add_column(col, justify="right")
     for r in curve:
-        table.add_row(f"{r['env_steps']:,}", f"{r['success_rate']:.0%}", f"{r['mean_reward']:.1f}",
-                      f"{100 * r['final_distance']:.1f}", f"{r['wall_s']:.0f}")
+        table.add_row(
+            f"{r['env_steps']:,}",
+            f"{r['success_rate']:.0%}",
+            f"{r['mean_reward']:.1f}",
+            f"{100 * r['final_distance']:.1f}",
+            f"{r['wall_s']:.0f}",
+        )
     console.print(table)
-    console.print(f"SB3 training: {model.num_timesteps:,} env steps in {train_s:.0f} s "
-                  f"({model.num_timesteps / train_s:.1f} env steps/s incl. updates)")
+    console.print(
+        f"SB3 training: {model.num_timesteps:,} env steps in {train_s:.0f} s "
+        f"({model.num_timesteps / train_s:.1f} env steps/s incl. updates)"
+    )
     if jax_curve is not None:
         jt = Table(title=f"mjx-push JAX learner, {args.jax_run} ({jax_curve['env_steps']:,} env steps)")
         for col in ("env steps", "success", "mean reward", "final dist (cm)"):
             jt.add_column(col, justify="right")
-        for steps, success, reward, dist in zip(jax_curve["eval_env_steps"], jax_curve["eval_success"],
-                                                jax_curve["eval_reward"], jax_curve["eval_final_distance"]):
+        for steps, success, reward, dist in zip(
+            jax_curve["eval_env_steps"],
+            jax_curve["eval_success"],
+            jax_curve["eval_reward"],
+            jax_curve["eval_final_distance"],
+        ):
             jt.add_row(f"{steps:,}", f"{success:.0%}", f"{reward:.1f}", f"{100 * dist:.1f}")
         console.print(jt)
-        console.print(f"JAX training: {jax_curve['env_steps']:,} env steps, {jax_curve['updates']:,} updates in "
-                      f"{jax_curve['wall_s']:.0f} s")
+        console.print(
+            f"JAX training: {jax_curve['env_steps']:,} env steps, {jax_curve['updates']:,} updates in "
+            f"{jax_curve['wall_s']:.0f} s"
+        )
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({
-        "args": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
-        "env_config": dataclasses.asdict(config),
-        "sb3": {"curve": curve, "train_s": train_s, "env_steps": model.num_timesteps},
-        "jax": jax_curve,
-    }, indent=2, default=str) + "\n")
+    args.out.write_text(
+        json.dumps(
+            {
+                "args": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
+                "env_config": dataclasses.asdict(config),
+                "sb3": {"curve": curve, "train_s": train_s, "env_steps": model.num_timesteps},
+                "jax": jax_curve,
+            },
+            indent=2,
+            default=str,
+        )
+        + "\n"
+    )
     console.print(f"written {args.out}")
 
 

@@ -40,8 +40,9 @@ def main() -> None:
     console = Console()
 
     policy = load_as_policy(args.policy)
-    spec = EvalSpec(setting=args.setting, shape=args.shape, episodes=args.episodes,
-                    batch=min(args.batch, args.episodes))
+    spec = EvalSpec(
+        setting=args.setting, shape=args.shape, episodes=args.episodes, batch=min(args.batch, args.episodes)
+    )
     ev = evaluator_for(policy.config.env, policy.config.train.agent, spec.batch)
     t0 = time.perf_counter()
     mjx = ev.evaluate(policy, spec)["per_episode"]
@@ -52,7 +53,9 @@ def main() -> None:
     cpu: dict[str, list] = {k: [] for k in (*METRICS, "final_distance")}
     t0 = time.perf_counter()
     for i in range(spec.episodes):
-        geom = ("box", "cylinder")[i % 2] if spec.shape == "all" else ("cylinder" if spec.shape == "cylinder" else "box")
+        geom = (
+            ("box", "cylinder")[i % 2] if spec.shape == "all" else ("cylinder" if spec.shape == "cylinder" else "box")
+        )
         params, _ = ev.episode_params(spec, geom, np.array([i]))
         params = type(params)(**{k: np.asarray(getattr(params, k))[0] for k in params.__dataclass_fields__})
         obs = env.reset(seed=spec.seed + i, params=params, geom_type=geom)
@@ -74,7 +77,9 @@ def main() -> None:
     for col in ("metric", "MJX (JAX policy)", "CPU MuJoCo (NumPy policy)"):
         table.add_column(col, justify="right")
     for m in METRICS:
-        table.add_row(m, f"{s_mjx[m]['mean']:.3f} ± {s_mjx[m]['sem']:.3f}", f"{s_cpu[m]['mean']:.3f} ± {s_cpu[m]['sem']:.3f}")
+        table.add_row(
+            m, f"{s_mjx[m]['mean']:.3f} ± {s_mjx[m]['sem']:.3f}", f"{s_cpu[m]['mean']:.3f} ± {s_cpu[m]['sem']:.3f}"
+        )
     agree = float(np.mean(np.asarray(mjx["success"]) == np.asarray(cpu["success"])))
     dd = np.abs(np.asarray(mjx["final_distance"]) - np.asarray(cpu["final_distance"]))
     table.add_row("success agreement", f"{agree:.2f}", "")
@@ -82,12 +87,22 @@ def main() -> None:
     table.add_row("wall s (incl. compile)", f"{t_mjx:.0f}", f"{t_cpu:.0f}")
     console.print(table)
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"policy": str(args.policy), "spec": vars(args) | {"policy": str(args.policy),
-                                                                                      "out": str(args.out)},
-                                    "mjx": s_mjx, "cpu": s_cpu, "success_agreement": agree,
-                                    "final_distance_diff_median": float(np.median(dd)),
-                                    "final_distance_diff_max": float(dd.max()),
-                                    "wall_s": {"mjx": t_mjx, "cpu": t_cpu}}, indent=2) + "\n")
+    args.out.write_text(
+        json.dumps(
+            {
+                "policy": str(args.policy),
+                "spec": vars(args) | {"policy": str(args.policy), "out": str(args.out)},
+                "mjx": s_mjx,
+                "cpu": s_cpu,
+                "success_agreement": agree,
+                "final_distance_diff_median": float(np.median(dd)),
+                "final_distance_diff_max": float(dd.max()),
+                "wall_s": {"mjx": t_mjx, "cpu": t_cpu},
+            },
+            indent=2,
+        )
+        + "\n"
+    )
     console.print(f"written {args.out}")
 
 

@@ -78,8 +78,15 @@ def _mjx_runners(batch: PushBatch, steps: int, chunk: int):
     return {"lockstep": jax.jit(lockstep), "scheduled": jax.jit(scheduled)}
 
 
-def measure_mjx(env_config, num_envs: int, steps: int, chunk: int, max_devices: int | None, key,
-                modes: tuple[str, ...] = ("lockstep", "scheduled")) -> list[dict]:
+def measure_mjx(
+    env_config,
+    num_envs: int,
+    steps: int,
+    chunk: int,
+    max_devices: int | None,
+    key,
+    modes: tuple[str, ...] = ("lockstep", "scheduled"),
+) -> list[dict]:
     batch = PushBatch(env_config, num_envs, max_devices=max_devices)
     state, actions = _episode_inputs(batch, key, steps)
     useful = int(jnp.sum(decode_substeps(actions[..., 2], env_config.substeps)))
@@ -93,10 +100,19 @@ def measure_mjx(env_config, num_envs: int, steps: int, chunk: int, max_devices: 
         t0 = time.perf_counter()
         out = jax.block_until_ready(fn(state, actions))
         dt = time.perf_counter() - t0
-        rows.append({"simulator": "MJX", "mode": mode, "devices": batch.num_devices, "compile_s": first - dt,
-                     "wall_s": dt, "useful_substeps": useful, "useful_substeps_per_s": useful / dt,
-                     "env_steps_per_s": num_envs * steps / dt,
-                     "invalid_steps": int(jnp.sum(out.info["invalid_count"]))})
+        rows.append(
+            {
+                "simulator": "MJX",
+                "mode": mode,
+                "devices": batch.num_devices,
+                "compile_s": first - dt,
+                "wall_s": dt,
+                "useful_substeps": useful,
+                "useful_substeps_per_s": useful / dt,
+                "env_steps_per_s": num_envs * steps / dt,
+                "invalid_steps": int(jnp.sum(out.info["invalid_count"])),
+            }
+        )
     return rows
 
 
@@ -122,9 +138,19 @@ def measure_cpu(env_config, episodes: list, cores: int) -> list[dict]:
     steps = sum(len(acts) for _, _, acts in episodes)
     rows = []
     one = _cpu_work((env_config, episodes, None))
-    rows.append({"simulator": "CPU MuJoCo", "mode": "1 process", "devices": 1, "compile_s": 0.0, "wall_s": one,
-                 "useful_substeps": useful, "useful_substeps_per_s": useful / one, "env_steps_per_s": steps / one,
-                 "invalid_steps": None})
+    rows.append(
+        {
+            "simulator": "CPU MuJoCo",
+            "mode": "1 process",
+            "devices": 1,
+            "compile_s": 0.0,
+            "wall_s": one,
+            "useful_substeps": useful,
+            "useful_substeps_per_s": useful / one,
+            "env_steps_per_s": steps / one,
+            "invalid_steps": None,
+        }
+    )
     if cores > 1:
         # Spawned workers (no forked JAX runtime); each builds its environment, then all start together.
         ctx = mp.get_context("spawn")
@@ -137,9 +163,19 @@ def measure_cpu(env_config, episodes: list, cores: int) -> list[dict]:
                 t0 = time.perf_counter()
                 res.get()
                 wall = time.perf_counter() - t0
-        rows.append({"simulator": "CPU MuJoCo", "mode": f"{cores} processes", "devices": cores, "compile_s": 0.0,
-                     "wall_s": wall, "useful_substeps": useful, "useful_substeps_per_s": useful / wall,
-                     "env_steps_per_s": steps / wall, "invalid_steps": None})
+        rows.append(
+            {
+                "simulator": "CPU MuJoCo",
+                "mode": f"{cores} processes",
+                "devices": cores,
+                "compile_s": 0.0,
+                "wall_s": wall,
+                "useful_substeps": useful,
+                "useful_substeps_per_s": useful / wall,
+                "env_steps_per_s": steps / wall,
+                "invalid_steps": None,
+            }
+        )
     return rows
 
 
@@ -179,21 +215,48 @@ def main(argv=None) -> None:
 
     cpu_rate = {r["devices"]: r["useful_substeps_per_s"] for r in rows if r["simulator"] == "CPU MuJoCo"}
     c_all = cpu_rate[max(cpu_rate)]
-    table = Table(title=f"MJX vs CPU MuJoCo, {a.preset} preset, {a.num_envs} envs x {a.steps} steps, "
-                        f"{platform.machine()} {os.cpu_count()} cores ({jax.default_backend()})")
-    for col in ("simulator", "mode", "devices", "compile s", "wall s", "useful substeps/s", "env steps/s",
-                f"vs CPU MuJoCo ({max(cpu_rate)} cores)"):
+    table = Table(
+        title=f"MJX vs CPU MuJoCo, {a.preset} preset, {a.num_envs} envs x {a.steps} steps, "
+        f"{platform.machine()} {os.cpu_count()} cores ({jax.default_backend()})"
+    )
+    for col in (
+        "simulator",
+        "mode",
+        "devices",
+        "compile s",
+        "wall s",
+        "useful substeps/s",
+        "env steps/s",
+        f"vs CPU MuJoCo ({max(cpu_rate)} cores)",
+    ):
         table.add_column(col, justify="right")
     for r in rows:
         r["ratio_vs_cpu_mujoco_all_cores"] = r["useful_substeps_per_s"] / c_all
-        table.add_row(r["simulator"], r["mode"], str(r["devices"]), f"{r['compile_s']:.1f}", f"{r['wall_s']:.2f}",
-                      f"{r['useful_substeps_per_s']:,.0f}", f"{r['env_steps_per_s']:.1f}",
-                      f"{r['ratio_vs_cpu_mujoco_all_cores']:.2f}")
+        table.add_row(
+            r["simulator"],
+            r["mode"],
+            str(r["devices"]),
+            f"{r['compile_s']:.1f}",
+            f"{r['wall_s']:.2f}",
+            f"{r['useful_substeps_per_s']:,.0f}",
+            f"{r['env_steps_per_s']:.1f}",
+            f"{r['ratio_vs_cpu_mujoco_all_cores']:.2f}",
+        )
     console.print(table)
     a.out.parent.mkdir(parents=True, exist_ok=True)
-    a.out.write_text(json.dumps({"machine": f"{platform.machine()}, {os.cpu_count()} cores",
-                                 "backend": jax.default_backend(), "host_devices": len(jax.devices()),
-                                 "args": {k: str(v) for k, v in vars(a).items()}, "rows": rows}, indent=2) + "\n")
+    a.out.write_text(
+        json.dumps(
+            {
+                "machine": f"{platform.machine()}, {os.cpu_count()} cores",
+                "backend": jax.default_backend(),
+                "host_devices": len(jax.devices()),
+                "args": {k: str(v) for k, v in vars(a).items()},
+                "rows": rows,
+            },
+            indent=2,
+        )
+        + "\n"
+    )
     console.print(f"wrote {a.out}")
 
 

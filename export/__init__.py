@@ -34,8 +34,9 @@ def register_envs() -> None:
     from code that calls it on the returned object (SB3's `check_env`), and the environment enforces the
     call order and its 50-step time limit itself."""
     if ENV_ID not in _gymnasium.registry:
-        _gymnasium.register(id=ENV_ID, entry_point="export.gym_env:MjxPushGymEnv", disable_env_checker=True,
-                            order_enforce=False)
+        _gymnasium.register(
+            id=ENV_ID, entry_point="export.gym_env:MjxPushGymEnv", disable_env_checker=True, order_enforce=False
+        )
 
 
 register_envs()

@@ -79,7 +79,8 @@ class MaskPipeline:
             for k, (x, hi) in enumerate(zip(t, top)):
                 if not 0.0 <= x <= hi:
                     raise ConfigError(
-                        f"{name}[{k}] must be in [0, {hi:g}] for color_space {self.color_space!r}, got {x:g}")
+                        f"{name}[{k}] must be in [0, {hi:g}] for color_space {self.color_space!r}, got {x:g}"
+                    )
         # Only the hue may wrap (lower > upper); every other channel needs lower <= upper.
         for k in range(3):
             wraps = self.color_space == "hsv" and k == 0

@@ -58,8 +58,10 @@ class Export:
         else:
             stem = source.with_suffix("") if source.suffix in (".msgpack", ".json") else source
             if not (source.exists() or stem.with_suffix(".msgpack").exists() or stem.with_suffix(".json").exists()):
-                raise ConfigError(f"SOURCE {source}: no such file or directory (a run directory, or a saved "
-                                 "policy: best_policy.msgpack / .json or their stem)")
+                raise ConfigError(
+                    f"SOURCE {source}: no such file or directory (a run directory, or a saved "
+                    "policy: best_policy.msgpack / .json or their stem)"
+                )
         if Path(self.out).suffix != ".npz":
             raise ConfigError(f"OUT.npz must be an .npz path, got {self.out}")
         extra = self._provenance()
@@ -67,11 +69,14 @@ class Export:
             policy = load_policy(stem)
         except ValueError as e:
             raise ConfigError(f"SOURCE {source}: {e}") from None
-        meta = export_policy(policy, self.out, encoder=self.encoder,
-                             provenance={"source": str(stem), "commit": source_commit(), **extra})
+        meta = export_policy(
+            policy, self.out, encoder=self.encoder, provenance={"source": str(stem), "commit": source_commit(), **extra}
+        )
         size = Path(self.out).stat().st_size
-        Console().print(f"wrote [bold]{self.out}[/] ({size / 1e6:.2f} MB): agent {meta['agent']['kind']}, "
-                        f"format {FORMAT} version {FORMAT_VERSION}, from {stem}; scores {meta['scores']}")
+        Console().print(
+            f"wrote [bold]{self.out}[/] ({size / 1e6:.2f} MB): agent {meta['agent']['kind']}, "
+            f"format {FORMAT} version {FORMAT_VERSION}, from {stem}; scores {meta['scores']}"
+        )
         return meta
 
 
@@ -82,12 +87,15 @@ def source_commit() -> str | None:
 
     root = Path(__file__).resolve().parent.parent
     try:
-        head = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True,
-                              timeout=10)
+        head = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10)
         if head.returncode != 0:
             return None
-        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
-                               capture_output=True, text=True, timeout=10).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True,
+            text=True,
+            timeout=10,
+        ).stdout.strip()
     except (OSError, subprocess.TimeoutExpired):
         return None
     return head.stdout.strip() + ("+dirty" if dirty else "")
@@ -105,8 +113,9 @@ class Deploy(EvalOptions):
     mask_source: Literal["auto", "render", "analytic"] = "auto"
     """object masks: the rendered under-table camera, the analytic projection (as in MJX),
     or render when possible (the header says which)"""
-    out: Annotated[Path | None, tyro.conf.arg(aliases=("--out-json",), metavar="PATH",
-                                               help_behavior_hint="(default: none)")] = None
+    out: Annotated[
+        Path | None, tyro.conf.arg(aliases=("--out-json",), metavar="PATH", help_behavior_hint="(default: none)")
+    ] = None
     """write the per-episode records and the summary here (JSON)"""
 
     def _check(self) -> None:
@@ -149,8 +158,10 @@ class Deploy(EvalOptions):
             if episode < self.video_episodes:
                 writer.append_data(sim_eval.side_by_side(e))
 
-        console.print(f"[bold]mjx-push deploy[/] {policy.kind} (NumPy, CPU MuJoCo): {self.policy}, {self.episodes} "
-                      f"episodes, setting {self.setting}, shape {self.shape}, masks {env.mask_source_used}")
+        console.print(
+            f"[bold]mjx-push deploy[/] {policy.kind} (NumPy, CPU MuJoCo): {self.policy}, {self.episodes} "
+            f"episodes, setting {self.setting}, shape {self.shape}, masks {env.mask_source_used}"
+        )
         try:
             records = sim_eval.run_episodes(policy, env, spec, on_frame if writer is not None else None)
         finally:
@@ -170,11 +181,18 @@ class Deploy(EvalOptions):
             "invalid_episodes": invalid,
             "episodes": records,
         }
-        console.print(metrics_table(f"{policy.kind} / {self.setting} / {self.shape} ({self.episodes} episodes, "
-                                    f"CPU MuJoCo, {env.mask_source_used} masks)", summary))
+        console.print(
+            metrics_table(
+                f"{policy.kind} / {self.setting} / {self.shape} ({self.episodes} episodes, "
+                f"CPU MuJoCo, {env.mask_source_used} masks)",
+                summary,
+            )
+        )
         if invalid:
-            console.print(f"[yellow]{invalid} episodes hit an invalid simulation state "
-                          f"(counted as failures with reward -{config.episode_length})")
+            console.print(
+                f"[yellow]{invalid} episodes hit an invalid simulation state "
+                f"(counted as failures with reward -{config.episode_length})"
+            )
         if self.video is not None:
             console.print(f"video: {self.video} (first {min(self.video_episodes, self.episodes)} episode(s))")
         if self.out is not None:
@@ -193,8 +211,10 @@ def _open_video(path: Path):
     try:
         return iio.get_writer(path, fps=VIDEO_FPS)
     except (ValueError, ImportError, RuntimeError) as e:
-        raise ConfigError(f"--video: no .mp4 writer is available ({str(e).splitlines()[0]}); pip install "
-                         f"'mjx-push[mp4]', or write a GIF: --video {path.with_suffix('.gif')}") from None
+        raise ConfigError(
+            f"--video: no .mp4 writer is available ({str(e).splitlines()[0]}); pip install "
+            f"'mjx-push[mp4]', or write a GIF: --video {path.with_suffix('.gif')}"
+        ) from None
 
 
 COMMANDS = {"export": Export, "deploy": Deploy}
@@ -229,8 +249,9 @@ def main(argv: list[str] | None = None) -> int:
     compile_cache.enable()
     try:
         # Boolean options are single flags (--resume, --no-progress), not --x / --no-x pairs.
-        cmd = tyro.extras.subcommand_cli_from_dict(commands, args=argv, prog="mjx-push",
-                                                   config=(tyro.conf.FlagCreatePairsOff,))
+        cmd = tyro.extras.subcommand_cli_from_dict(
+            commands, args=argv, prog="mjx-push", config=(tyro.conf.FlagCreatePairsOff,)
+        )
         cmd.run()
     except ConfigError as e:  # the user's input is wrong and the message says how: no traceback
         print(f"mjx-push: error: {e}", file=sys.stderr)

@@ -32,8 +32,15 @@ def flange_pose(d: mujoco.MjData, ids: scene.SceneIds) -> tuple[np.ndarray, np.n
     return d.site_xpos[ids.flange_site].copy(), d.site_xmat[ids.flange_site].reshape(3, 3)[:, 2].copy()
 
 
-def law(p: np.ndarray, z: np.ndarray, jac_pos: np.ndarray, jac_rot: np.ndarray, q: np.ndarray,
-        target: np.ndarray, cfg: ControllerConfig) -> np.ndarray:
+def law(
+    p: np.ndarray,
+    z: np.ndarray,
+    jac_pos: np.ndarray,
+    jac_rot: np.ndarray,
+    q: np.ndarray,
+    target: np.ndarray,
+    cfg: ControllerConfig,
+) -> np.ndarray:
     """The task-space velocity law on plain arrays, so a real robot can run it with its own kinematics.
 
     p, z: flange position and z axis (3,) in the base frame; jac_pos, jac_rot: (3, 6) linear and angular

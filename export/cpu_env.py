@@ -58,8 +58,11 @@ CAMERAS = ("under_table", "top")
 BLUE_MIN = 128  # B > BLUE_MIN
 RED_GREEN_MAX = 80  # R < RED_GREEN_MAX and G < RED_GREEN_MAX
 MAX_RENDER_SIZE = (480, 640)  # (height, width): the scene's offscreen buffer
-_UNSTABLE_WARNINGS = (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
-                      mujoco.mjtWarning.mjWARN_BADQACC)
+_UNSTABLE_WARNINGS = (
+    mujoco.mjtWarning.mjWARN_BADQPOS,
+    mujoco.mjtWarning.mjWARN_BADQVEL,
+    mujoco.mjtWarning.mjWARN_BADQACC,
+)
 
 
 # One place creates renderers and remembers a failure for the process (MuJoCo aborts on a second try).
@@ -89,8 +92,14 @@ def decode_substeps(a_s: float, substeps: tuple[int, int]) -> int:
     return int(np.clip(n, lo, hi))
 
 
-def flange_target(ee_xy: np.ndarray, a_xy: np.ndarray, action_scale: float, workspace_x: tuple[float, float],
-                  workspace_y: tuple[float, float], home_z: float) -> np.ndarray:
+def flange_target(
+    ee_xy: np.ndarray,
+    a_xy: np.ndarray,
+    action_scale: float,
+    workspace_x: tuple[float, float],
+    workspace_y: tuple[float, float],
+    home_z: float,
+) -> np.ndarray:
     """The flange target (3,) of an action, as `PushEnv.begin_step`: ee_xy + a_xy * action_scale clipped to
     the workspace, z at the home flange height. Shared by the simulator and the deployment loop."""
     xy = np.asarray(ee_xy, np.float64)[:2] + np.asarray(a_xy, np.float64)[:2] * action_scale
@@ -126,8 +135,9 @@ def half_height(params: objects.ObjectParams, geom_type: str) -> float:
     return float(params.size[2] if geom_type == "box" else params.size[1])
 
 
-def apply_params(m: mujoco.MjModel, d: mujoco.MjData, params: objects.ObjectParams, ids: scene.SceneIds,
-                 geom_type: str) -> None:
+def apply_params(
+    m: mujoco.MjModel, d: mujoco.MjData, params: objects.ObjectParams, ids: scene.SceneIds, geom_type: str
+) -> None:
     """Write the object's size, friction, mass and inertia into `m` (as `objects.apply` does for MJX) and
     let `mj_setConst` recompute what MuJoCo derives from them (inverse weights, subtree masses)."""
     g, b = ids.object_geom, ids.object_body
@@ -182,14 +192,20 @@ class CpuPushEnv:
     """The pushing task on CPU MuJoCo. `geom_type` None draws the shape per episode from the config's
     shape filter (equally likely); "box" or "cylinder" fixes it."""
 
-    def __init__(self, config: EnvConfig = EnvConfig(), geom_type: str | None = None, mask_source: str = "auto",
-                 seed: int | None = None):
+    def __init__(
+        self,
+        config: EnvConfig = EnvConfig(),
+        geom_type: str | None = None,
+        mask_source: str = "auto",
+        seed: int | None = None,
+    ):
         if not isinstance(config, EnvConfig):
             raise ConfigError(f"config must be an mjx_push.env.EnvConfig, got {type(config).__name__}")
         shapes = config.objects.shapes()
         if geom_type is not None and geom_type not in shapes:
-            raise ConfigError(f"geom_type must be None or one of {shapes} (shape filter {config.objects.shape!r}),"
-                             f" got {geom_type!r}")
+            raise ConfigError(
+                f"geom_type must be None or one of {shapes} (shape filter {config.objects.shape!r}), got {geom_type!r}"
+            )
         if mask_source not in MASK_SOURCES:
             raise ConfigError(f"mask_source must be one of {MASK_SOURCES}, got {mask_source!r}")
         self.config = config
@@ -207,8 +223,9 @@ class CpuPushEnv:
         self._warned_clip = False
 
     # --- public API ----------------------------------------------------------------------------------
-    def reset(self, seed: int | None = None, params: objects.ObjectParams | None = None,
-              geom_type: str | None = None) -> dict:
+    def reset(
+        self, seed: int | None = None, params: objects.ObjectParams | None = None, geom_type: str | None = None
+    ) -> dict:
         """Start an episode. `seed` reseeds the environment's generator (shape draw, object draw,
         observation noise); `params` (an `ObjectParams`, JAX or NumPy leaves) fixes the object; `geom_type`
         its shape (defaults to the fixed shape, else drawn)."""
@@ -258,15 +275,25 @@ class CpuPushEnv:
         if not self._warned_clip and np.any(np.abs(action[np.isfinite(action)]) > 1.0 + 1e-6):
             # Clipping silently hid a common mistake: a decoded substep count (NumpyPolicy.act) passed as a_s.
             self._warned_clip = True
-            warnings.warn(f"action {action.tolist()} lies outside [-1, 1] and is clipped (warned once per "
-                          "environment); a_s is the raw action in [-1, 1], not a substep count: pass "
-                          "NumpyPolicy.act_raw's output, not act's", UserWarning, stacklevel=2)
+            warnings.warn(
+                f"action {action.tolist()} lies outside [-1, 1] and is clipped (warned once per "
+                "environment); a_s is the raw action in [-1, 1], not a substep count: pass "
+                "NumpyPolicy.act_raw's output, not act's",
+                UserWarning,
+                stacklevel=2,
+            )
         action, bad = sanitize_action(action)
         self.bad_actions += int(bad)
         cfg = self.config
         d, ids = self._s.data, self._s.ids
-        self.target = flange_target(d.site_xpos[ids.flange_site][:2], action[:2], cfg.action_scale,
-                                    cfg.workspace_x, cfg.workspace_y, self.home_flange[2])
+        self.target = flange_target(
+            d.site_xpos[ids.flange_site][:2],
+            action[:2],
+            cfg.action_scale,
+            cfg.workspace_x,
+            cfg.workspace_y,
+            self.home_flange[2],
+        )
         n = decode_substeps(action[2], cfg.substeps)
         unstable0 = self._unstable_count()
         max_tilt, max_herr = self.run_substeps(n)
@@ -380,10 +407,15 @@ class CpuPushEnv:
             self._renderer(probe_shape, scene.IMAGE_SIZE, scene.IMAGE_SIZE)
         except Exception as e:  # no OpenGL context (no EGL/OSMesa/display)
             if source == "render":
-                raise RuntimeError(f"mask_source='render' needs {unavailable_reason()}; or pass "
-                                   "mask_source='analytic' (the masks MJX trains with)") from e
-            warnings.warn(f"mask_source='auto': {unavailable_reason()}; using analytic masks instead of the "
-                          "rendered camera", RuntimeWarning, stacklevel=3)
+                raise RuntimeError(
+                    f"mask_source='render' needs {unavailable_reason()}; or pass "
+                    "mask_source='analytic' (the masks MJX trains with)"
+                ) from e
+            warnings.warn(
+                f"mask_source='auto': {unavailable_reason()}; using analytic masks instead of the rendered camera",
+                RuntimeWarning,
+                stacklevel=3,
+            )
             return "analytic"
         return "render"
 
@@ -401,8 +433,9 @@ class CpuPushEnv:
         """Mask of the object at `obj_qpos` (7,), the rest of the scene at `qpos`."""
         if self.mask_source_used == "analytic":
             # Like the MJX environment: upright object at the pose's xy, yaw and centre height.
-            return masks_np.object_mask(self.geom_type, self.params.size, obj_qpos[:2],
-                                        quat_yaw(obj_qpos[3:7]), obj_qpos[2])
+            return masks_np.object_mask(
+                self.geom_type, self.params.size, obj_qpos[:2], quat_yaw(obj_qpos[3:7]), obj_qpos[2]
+            )
         a = self._s.ids.object_qpos
         q = np.array(qpos, copy=True)
         q[a : a + 7] = obj_qpos

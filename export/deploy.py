@@ -92,10 +92,19 @@ def _check_mask(name: str, mask) -> np.ndarray:
     return mask.astype(bool)
 
 
-def run_episode(policy: Policy, robot: Robot, camera: Camera, pipeline: MaskPipeline, goal_mask: np.ndarray,
-                steps: int = 50, action_scale: float = 1.0, workspace=DEFAULT_WORKSPACE,
-                home_z: float | None = None, max_wait_ms: int = MAX_WAIT_MS,
-                on_step: Callable[[int, dict], bool | None] | None = None) -> dict:
+def run_episode(
+    policy: Policy,
+    robot: Robot,
+    camera: Camera,
+    pipeline: MaskPipeline,
+    goal_mask: np.ndarray,
+    steps: int = 50,
+    action_scale: float = 1.0,
+    workspace=DEFAULT_WORKSPACE,
+    home_z: float | None = None,
+    max_wait_ms: int = MAX_WAIT_MS,
+    on_step: Callable[[int, dict], bool | None] | None = None,
+) -> dict:
     """Run one episode of `steps` policy steps and return its record.
 
     Policy outputs are handled like the simulator's actions: non-finite a_x, a_y become 0 and are counted
@@ -140,8 +149,9 @@ def run_episode(policy: Policy, robot: Robot, camera: Camera, pipeline: MaskPipe
         masks.append(mask)
         actions.append([a_xy[0], a_xy[1], a_s])
         targets.append(target)
-        if on_step is not None and on_step(t, {"ee_xy": ee, "object_mask": mask, "action": actions[-1],
-                                               "target": target}):
+        if on_step is not None and on_step(
+            t, {"ee_xy": ee, "object_mask": mask, "action": actions[-1], "target": target}
+        ):
             break
     ee_hist.append(np.asarray(robot.flange_xy(), np.float64).reshape(2))
     masks.append(pipeline.to_mask(camera.frame()))

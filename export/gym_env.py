@@ -60,7 +60,7 @@ LATENT_BOUND = 100.0
 
 
 def split_observation(observation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """"mask" observation vector(s) (..., 2 + 4096) -> (ee_xy (..., 2), object_mask (..., 64, 64) bool)."""
+    """ "mask" observation vector(s) (..., 2 + 4096) -> (ee_xy (..., 2), object_mask (..., 64, 64) bool)."""
     observation = np.asarray(observation)
     n = scene.IMAGE_SIZE
     if observation.shape[-1] != 2 + N_PIX:
@@ -85,16 +85,29 @@ class MjxPushGymEnv(gymnasium.Env):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
 
-    def __init__(self, config: EnvConfig | None = None, geom_type: str | None = None, mask_source: str = "render",
-                 observation: str = "latent", encoder: str | Path | None = None, render_mode: str | None = None,
-                 render_size: tuple[int, int] = (240, 320), render_camera: str = "top"):
+    def __init__(
+        self,
+        config: EnvConfig | None = None,
+        geom_type: str | None = None,
+        mask_source: str = "render",
+        observation: str = "latent",
+        encoder: str | Path | None = None,
+        render_mode: str | None = None,
+        render_size: tuple[int, int] = (240, 320),
+        render_camera: str = "top",
+    ):
         if observation not in OBSERVATIONS:
             raise ConfigError(f"observation must be one of {OBSERVATIONS}, got {observation!r}")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ConfigError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
+            raise ConfigError(
+                f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}"
+            )
         self.render_size = tuple(render_size)
-        if not (len(self.render_size) == 2 and 1 <= self.render_size[0] <= MAX_RENDER_SIZE[0]
-                and 1 <= self.render_size[1] <= MAX_RENDER_SIZE[1]):
+        if not (
+            len(self.render_size) == 2
+            and 1 <= self.render_size[0] <= MAX_RENDER_SIZE[0]
+            and 1 <= self.render_size[1] <= MAX_RENDER_SIZE[1]
+        ):
             raise ConfigError(f"render_size must be (height, width) within {MAX_RENDER_SIZE}, got {render_size!r}")
         if render_camera not in CAMERAS:
             raise ConfigError(f"render_camera must be one of {CAMERAS}, got {render_camera!r}")
@@ -113,8 +126,11 @@ class MjxPushGymEnv(gymnasium.Env):
             low = np.concatenate([np.full(2, -EE_BOUND), np.zeros(N_PIX)]).astype(np.float32)
             high = np.concatenate([np.full(2, EE_BOUND), np.ones(N_PIX)]).astype(np.float32)
         # Goals lie on the table (an object leaving its footprint is an invalid state and is put back).
-        goal = spaces.Box(np.array([scene.TABLE_X[0], scene.TABLE_Y[0]], np.float32),
-                          np.array([scene.TABLE_X[1], scene.TABLE_Y[1]], np.float32), dtype=np.float32)
+        goal = spaces.Box(
+            np.array([scene.TABLE_X[0], scene.TABLE_Y[0]], np.float32),
+            np.array([scene.TABLE_X[1], scene.TABLE_Y[1]], np.float32),
+            dtype=np.float32,
+        )
         self.observation_space = spaces.Dict(
             {"observation": spaces.Box(low, high, dtype=np.float32), "achieved_goal": goal, "desired_goal": goal}
         )
@@ -141,8 +157,13 @@ class MjxPushGymEnv(gymnasium.Env):
         obs, _, terminated, truncated, info = self.sim.step(action)
         out = self._obs(obs)
         info = self._info(info, out)
-        return out, float(self.compute_reward(out["achieved_goal"], out["desired_goal"], info)), terminated, \
-            truncated, info
+        return (
+            out,
+            float(self.compute_reward(out["achieved_goal"], out["desired_goal"], info)),
+            terminated,
+            truncated,
+            info,
+        )
 
     def compute_reward(self, achieved_goal, desired_goal, info=None) -> np.ndarray:
         """Sparse reward from the goals alone: 0 where ||achieved_goal - desired_goal|| < tau, else -1.

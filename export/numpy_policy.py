@@ -79,14 +79,19 @@ class NumpyPolicy:
             self._convs.append((weight, w[f"encoder/Conv_{i}/bias"]))
         self._enc_dense = (w["encoder/Dense_0/kernel"], w["encoder/Dense_0/bias"])
         self._enc_mean = (w["encoder/mean/kernel"], w["encoder/mean/bias"])
-        self._mlp = [(w[f"actor/mlp/Dense_{i}/kernel"], w[f"actor/mlp/Dense_{i}/bias"])
-                     for i in range(len(meta["agent"]["hidden"]))]
+        self._mlp = [
+            (w[f"actor/mlp/Dense_{i}/kernel"], w[f"actor/mlp/Dense_{i}/bias"])
+            for i in range(len(meta["agent"]["hidden"]))
+        ]
         self._mean_head = (w["actor/mean_head/kernel"], w["actor/mean_head/bias"])
         self._log_std_head = (w["actor/log_std_head/kernel"], w["actor/log_std_head/bias"])
         self._gru = {name: w[name].copy() for name in w if name.startswith("actor/features/cell/")}
         norm = meta["agent"].get("obs_norm")
-        self._norm = None if not norm else (F32(norm["clip"]), {
-            g: (w[f"actor/norm/{g}_mean"], w[f"actor/norm/{g}_std"]) for g in ("ee_xy", "z")})
+        self._norm = (
+            None
+            if not norm
+            else (F32(norm["clip"]), {g: (w[f"actor/norm/{g}_mean"], w[f"actor/norm/{g}_std"]) for g in ("ee_xy", "z")})
+        )
         self.reset()
 
     @classmethod

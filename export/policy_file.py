@@ -176,8 +176,10 @@ def load_npz(path: Path | str) -> PolicyFile:
         raise ConfigError(f"policy file {path}: {e}") from None
     missing = sorted(set(want) - set(arrays))
     if missing:
-        raise ConfigError(f"policy file {path} lacks {len(missing)} array(s) its {meta['agent']['kind']} metadata "
-                         f"requires: {missing[:5]}")
+        raise ConfigError(
+            f"policy file {path} lacks {len(missing)} array(s) its {meta['agent']['kind']} metadata "
+            f"requires: {missing[:5]}"
+        )
     unexpected = sorted(set(arrays) - set(want))
     if unexpected:
         raise ConfigError(f"policy file {path} has arrays its metadata does not describe: {unexpected[:5]}")
@@ -193,7 +195,9 @@ def load_npz(path: Path | str) -> PolicyFile:
             raise ConfigError(f"policy file {path}: normalisation {name!r} must be positive")
     clip = (meta["agent"].get("obs_norm") or {}).get("clip", 1.0)
     if not (isinstance(clip, (int, float)) and math.isfinite(clip) and clip > 0):
-        raise ConfigError(f"policy file {path}: metadata field agent.obs_norm.clip must be a positive number, got {clip!r}")
+        raise ConfigError(
+            f"policy file {path}: metadata field agent.obs_norm.clip must be a positive number, got {clip!r}"
+        )
     return PolicyFile(path, meta, arrays)
 
 
@@ -211,8 +215,10 @@ def _read_metadata(path: Path, raw: np.ndarray | None) -> dict:
         raise ConfigError(f"policy file {path} is not an mjx-push NumPy policy (format {got!r}, expected {FORMAT!r})")
     version = meta.get("format_version")
     if version != FORMAT_VERSION:
-        raise ConfigError(f"policy file {path} has format version {version!r}; this reader understands version "
-                         f"{FORMAT_VERSION} only (re-export the policy with a matching mjx-push)")
+        raise ConfigError(
+            f"policy file {path} has format version {version!r}; this reader understands version "
+            f"{FORMAT_VERSION} only (re-export the policy with a matching mjx-push)"
+        )
     return meta
 
 
@@ -220,8 +226,10 @@ def _encoder_source(meta: dict, path: Path) -> str:
     weights = (meta.get("encoder") or {}).get("weights") or {"source": "embed"}
     source = weights.get("source") if isinstance(weights, dict) else None
     if source not in ENCODER_SOURCES:
-        raise ConfigError(f"policy file {path}: metadata field encoder.weights.source must be one of "
-                         f"{ENCODER_SOURCES}, got {source!r}")
+        raise ConfigError(
+            f"policy file {path}: metadata field encoder.weights.source must be one of "
+            f"{ENCODER_SOURCES}, got {source!r}"
+        )
     return source
 
 
@@ -230,8 +238,10 @@ def package_encoder_path() -> Path:
     """The encoder weights mjx_push ships (found without importing mjx_push, which starts JAX)."""
     spec = importlib.util.find_spec("mjx_push")
     if spec is None or not spec.submodule_search_locations:
-        raise ConfigError("the mjx_push package is not installed: a policy file that references its encoder "
-                         "needs it (or re-export the policy with the encoder embedded)")
+        raise ConfigError(
+            "the mjx_push package is not installed: a policy file that references its encoder "
+            "needs it (or re-export the policy with the encoder embedded)"
+        )
     return Path(list(spec.submodule_search_locations)[0]) / "assets" / "encoder.msgpack"
 
 
@@ -260,9 +270,11 @@ def package_encoder_arrays(sha256: str | None, path: Path | str = "policy") -> d
     blob = enc_path.read_bytes()
     have = hashlib.sha256(blob).hexdigest()
     if sha256 != have:
-        raise ConfigError(f"policy file {path} was exported against the package encoder with sha256 {sha256}, "
-                         f"but this mjx-push ships {have} ({enc_path}): use the mjx-push version it was "
-                         "exported with, or re-export it with the encoder embedded")
+        raise ConfigError(
+            f"policy file {path} was exported against the package encoder with sha256 {sha256}, "
+            f"but this mjx-push ships {have} ({enc_path}): use the mjx-push version it was "
+            "exported with, or re-export it with the encoder embedded"
+        )
     tree = _read_flax_msgpack(blob)
     return _flatten({k: v for k, v in tree.items() if k != "logvar"}, "encoder")
 
@@ -318,69 +330,85 @@ def build_metadata(policy, provenance: dict | None = None) -> dict:
     except PackageNotFoundError:
         pkg_version = None
     record = enc.load_record(cfg.encoder and Path(cfg.encoder))
-    return _json_safe({
-        "format": FORMAT,
-        "format_version": FORMAT_VERSION,
-        "package_version": pkg_version,
-        "agent": {"kind": agent.kind, "hidden": list(agent.hidden), "gru_hidden": agent.gru_hidden,
-                  "stack": agent.stack, "mlp_activation": "relu", "log_std_clip": [LOG_STD_MIN, LOG_STD_MAX],
-                  "gru_equations": GRU_EQUATIONS if agent.recurrent else None,
-                  "obs_norm": {"clip": agent.norm_clip} if agent.obs_norm else None},
-        "observation": {
-            "obs_dim": OBS_DIM,
-            "per_step": {"ee_xy": 2, "z_obj": enc.LATENT_DIM, "z_goal": enc.LATENT_DIM},
-            "flat_order": ["ee_xy", "z_obj", "z_goal"],
-            "gru_input_order": ["z_obj", "z_goal", "ee_xy"],
-            "stack": agent.stack,
-            "stack_order": "oldest first, flattened; zeros stand in for the steps before the first observation",
-            "first_step": "the observation at reset is the first step of the history",
-            "ee_xy": "measured flange xy in the robot base frame, metres",
-            "obs_noise_std": env.obs_noise,
-            "z_obj": "encoder mean of the current object mask",
-            "z_goal": "encoder mean of the goal mask (constant over an episode)",
-            "normalisation": ("before the feature extractor: ee_xy -> clip((ee_xy - actor/norm/ee_xy_mean) / "
-                              "actor/norm/ee_xy_std, -clip, clip), z_obj and z_goal likewise with actor/norm/z_*"
-                              if agent.obs_norm else None),
-        },
-        "action": {
-            "dim": ACTION_DIM,
-            "components": ["a_x", "a_y", "a_s"],
-            "range": [-1.0, 1.0],
-            "deterministic": "tanh(mean_head(h))",
-            "stochastic": "tanh(mean + exp(clip(log_std)) * N(0, 1))",
-            "action_scale": env.action_scale,
-            "target": "flange target = (clip(ee_x + a_x * action_scale, workspace_x), clip(ee_y + a_y * "
-                      "action_scale, workspace_y), home_flange_z)",
-            "workspace_x": list(env.workspace_x),
-            "workspace_y": list(env.workspace_y),
-            "home_flange_z": float(scene.home_flange_pos()[2]),
-            "substeps": list(env.substeps),
-            "substeps_formula": SUBSTEPS_FORMULA,
-            "substep_seconds": 0.001,
-            "sanitize": "non-finite components become 0, the rest are clipped to [-1, 1]",
-            "controller_gain": env.controller.gain,
-            "controller": "task-space velocity law dq = gain * J^+ e at every 1 ms substep (run_config.env.controller)",
-        },
-        "camera": {
-            "name": "under_table",
-            "image_size": scene.IMAGE_SIZE,
-            "fovy_deg": scene.CAMERA_FOVY,
-            "pos": [float(v) for v in scene.CAMERA_POS],
-            "direction": "looking straight up (+z)",
-            "pixel_convention": _pixel_convention(),
-            "mask": "bool (64, 64), True on the object's silhouette; fed to the encoder as float32 0/1",
-        },
-        "encoder": {
-            "channels": list(enc.CHANNELS), "kernel": 4, "stride": 2, "padding": "VALID", "activation": "relu",
-            "dense": enc.DENSE, "latent_dim": enc.LATENT_DIM,
-            "layout": "input NHWC (1 channel); Conv kernels HWIO; flatten row-major over (h, w, c)",
-            "record": {k: v for k, v in record.items() if k != "curve"},
-        },
-        "task": {"episode_length": env.episode_length, "success_tau": env.success_tau},
-        "scores": dict(policy.scores),
-        "provenance": dict(provenance or {}),
-        "run_config": configio.to_dict(cfg),
-    })
+    return _json_safe(
+        {
+            "format": FORMAT,
+            "format_version": FORMAT_VERSION,
+            "package_version": pkg_version,
+            "agent": {
+                "kind": agent.kind,
+                "hidden": list(agent.hidden),
+                "gru_hidden": agent.gru_hidden,
+                "stack": agent.stack,
+                "mlp_activation": "relu",
+                "log_std_clip": [LOG_STD_MIN, LOG_STD_MAX],
+                "gru_equations": GRU_EQUATIONS if agent.recurrent else None,
+                "obs_norm": {"clip": agent.norm_clip} if agent.obs_norm else None,
+            },
+            "observation": {
+                "obs_dim": OBS_DIM,
+                "per_step": {"ee_xy": 2, "z_obj": enc.LATENT_DIM, "z_goal": enc.LATENT_DIM},
+                "flat_order": ["ee_xy", "z_obj", "z_goal"],
+                "gru_input_order": ["z_obj", "z_goal", "ee_xy"],
+                "stack": agent.stack,
+                "stack_order": "oldest first, flattened; zeros stand in for the steps before the first observation",
+                "first_step": "the observation at reset is the first step of the history",
+                "ee_xy": "measured flange xy in the robot base frame, metres",
+                "obs_noise_std": env.obs_noise,
+                "z_obj": "encoder mean of the current object mask",
+                "z_goal": "encoder mean of the goal mask (constant over an episode)",
+                "normalisation": (
+                    "before the feature extractor: ee_xy -> clip((ee_xy - actor/norm/ee_xy_mean) / "
+                    "actor/norm/ee_xy_std, -clip, clip), z_obj and z_goal likewise with actor/norm/z_*"
+                    if agent.obs_norm
+                    else None
+                ),
+            },
+            "action": {
+                "dim": ACTION_DIM,
+                "components": ["a_x", "a_y", "a_s"],
+                "range": [-1.0, 1.0],
+                "deterministic": "tanh(mean_head(h))",
+                "stochastic": "tanh(mean + exp(clip(log_std)) * N(0, 1))",
+                "action_scale": env.action_scale,
+                "target": "flange target = (clip(ee_x + a_x * action_scale, workspace_x), clip(ee_y + a_y * "
+                "action_scale, workspace_y), home_flange_z)",
+                "workspace_x": list(env.workspace_x),
+                "workspace_y": list(env.workspace_y),
+                "home_flange_z": float(scene.home_flange_pos()[2]),
+                "substeps": list(env.substeps),
+                "substeps_formula": SUBSTEPS_FORMULA,
+                "substep_seconds": 0.001,
+                "sanitize": "non-finite components become 0, the rest are clipped to [-1, 1]",
+                "controller_gain": env.controller.gain,
+                "controller": "task-space velocity law dq = gain * J^+ e at every 1 ms substep (run_config.env.controller)",
+            },
+            "camera": {
+                "name": "under_table",
+                "image_size": scene.IMAGE_SIZE,
+                "fovy_deg": scene.CAMERA_FOVY,
+                "pos": [float(v) for v in scene.CAMERA_POS],
+                "direction": "looking straight up (+z)",
+                "pixel_convention": _pixel_convention(),
+                "mask": "bool (64, 64), True on the object's silhouette; fed to the encoder as float32 0/1",
+            },
+            "encoder": {
+                "channels": list(enc.CHANNELS),
+                "kernel": 4,
+                "stride": 2,
+                "padding": "VALID",
+                "activation": "relu",
+                "dense": enc.DENSE,
+                "latent_dim": enc.LATENT_DIM,
+                "layout": "input NHWC (1 channel); Conv kernels HWIO; flatten row-major over (h, w, c)",
+                "record": {k: v for k, v in record.items() if k != "curve"},
+            },
+            "task": {"episode_length": env.episode_length, "success_tau": env.success_tau},
+            "scores": dict(policy.scores),
+            "provenance": dict(provenance or {}),
+            "run_config": configio.to_dict(cfg),
+        }
+    )
 
 
 def _unflatten(arrays: dict[str, np.ndarray], prefix: str) -> dict:
@@ -441,15 +469,19 @@ def export_policy(policy, out: Path | str, encoder: str = "embed", provenance: d
     want = expected_shapes(meta)
     got = {k: v.shape for k, v in arrays.items()}
     if got != want:  # the networks changed without this format following: fail here, not in a reader
-        raise ConfigError(f"policy parameters do not match export format {FORMAT_VERSION}: "
-                         f"missing {sorted(set(want) - set(got))[:4]}, unexpected {sorted(set(got) - set(want))[:4]}, "
-                         f"wrong shapes {[k for k in set(want) & set(got) if want[k] != got[k]][:4]}")
+        raise ConfigError(
+            f"policy parameters do not match export format {FORMAT_VERSION}: "
+            f"missing {sorted(set(want) - set(got))[:4]}, unexpected {sorted(set(got) - set(want))[:4]}, "
+            f"wrong shapes {[k for k in set(want) & set(got) if want[k] != got[k]][:4]}"
+        )
     if encoder == "package":
         sha = package_encoder_sha256()
         shipped = package_encoder_arrays(sha)
         if any(not np.array_equal(shipped[k], v) for k, v in encoder_arrays.items()):
-            raise ConfigError("encoder='package': this policy's encoder is not the one the package ships; "
-                             "export it with the encoder embedded")
+            raise ConfigError(
+                "encoder='package': this policy's encoder is not the one the package ships; "
+                "export it with the encoder embedded"
+            )
         meta["encoder"]["weights"] = {"source": "package", "sha256": sha}
         arrays = {k: v for k, v in arrays.items() if k not in encoder_arrays}
     else:

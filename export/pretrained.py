@@ -28,7 +28,7 @@ def resolve(policy, directory: Path | None = None) -> Path:
     raises ValueError listing the names this version ships."""
     if not is_reference(policy):
         return Path(policy)
-    name = str(policy)[len(PREFIX):]
+    name = str(policy)[len(PREFIX) :]
     ships = available(directory)
     if name not in ships:
         listed = ", ".join(PREFIX + n for n in ships) or "none"

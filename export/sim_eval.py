@@ -31,12 +31,21 @@ def env_config(metadata: dict, spec) -> EnvConfig:
         base = configio.from_dict(EnvConfig, metadata["run_config"]["env"], "env")
     except (KeyError, TypeError, ValueError) as e:
         # An export from another mjx-push version: keep what the policy's action mapping needs.
-        warnings.warn(f"the policy's run configuration does not fit this mjx-push ({e}); using default "
-                      "controller and solver settings", RuntimeWarning, stacklevel=2)
+        warnings.warn(
+            f"the policy's run configuration does not fit this mjx-push ({e}); using default "
+            "controller and solver settings",
+            RuntimeWarning,
+            stacklevel=2,
+        )
         a, task = metadata["action"], metadata["task"]
-        base = EnvConfig(action_scale=a["action_scale"], substeps=tuple(a["substeps"]),
-                         workspace_x=tuple(a["workspace_x"]), workspace_y=tuple(a["workspace_y"]),
-                         episode_length=task["episode_length"], success_tau=task["success_tau"])
+        base = EnvConfig(
+            action_scale=a["action_scale"],
+            substeps=tuple(a["substeps"]),
+            workspace_x=tuple(a["workspace_x"]),
+            workspace_y=tuple(a["workspace_y"]),
+            episode_length=task["episode_length"],
+            success_tau=task["success_tau"],
+        )
     objects_cfg = spec.object_config(base.objects)
     shape = "any" if spec.shape == "all" else spec.shape
     return dataclasses.replace(base, objects=dataclasses.replace(objects_cfg, shape=shape))
@@ -86,17 +95,19 @@ def run_episodes(policy, env, spec, on_frame: Callable[[int, object], None] | No
             if on_frame is not None:
                 on_frame(i, env)
         valid = not info["episode_invalid"]
-        records.append({
-            "episode": i,
-            "seed": spec.seed + i,
-            "geom_type": info["geom_type"],
-            "success": bool(info["success"]) and valid,
-            "reward": reward if valid else -float(steps),
-            "overshoot": int(info["corrections"].overshoot),
-            "distance": int(info["corrections"].distance),
-            "start_distance": float(start_distance),
-            "final_distance": float(info["distance"]) if valid else float(start_distance),
-            "valid": valid,
-            "bad_actions": int(info["bad_actions"]),
-        })
+        records.append(
+            {
+                "episode": i,
+                "seed": spec.seed + i,
+                "geom_type": info["geom_type"],
+                "success": bool(info["success"]) and valid,
+                "reward": reward if valid else -float(steps),
+                "overshoot": int(info["corrections"].overshoot),
+                "distance": int(info["corrections"].distance),
+                "start_distance": float(start_distance),
+                "final_distance": float(info["distance"]) if valid else float(start_distance),
+                "valid": valid,
+                "bad_actions": int(info["bad_actions"]),
+            }
+        )
     return records

@@ -130,10 +130,16 @@ class PushBatch:
                 drawn = objects.sample(k_obj, env.config.objects, env.geom_type, env.home_flange[:2])
                 pick = lambda a, b: jnp.where(u, a, b)  # noqa: E731
                 return env.reset_with(pick(k_given, rng), jax.tree.map(pick, p_given, drawn))
+
             return f
 
-        parts = zip(self.envs, self._split(keys), self._split(use), self._split(episodes["keys"]),
-                    self._split_tree(episodes["params"]))
+        parts = zip(
+            self.envs,
+            self._split(keys),
+            self._split(use),
+            self._split(episodes["keys"]),
+            self._split_tree(episodes["params"]),
+        )
         return BatchState(tuple(self._run(one(env), k, u, kg, pg) for env, k, u, kg, pg in parts))
 
     def step(self, state: BatchState, actions: jax.Array) -> BatchState:
@@ -153,8 +159,9 @@ class PushBatch:
 
     def advance(self, state: BatchState, max_substeps: int) -> BatchState:
         """Run up to `max_substeps` substeps of every environment's current step (spent ones stand still)."""
-        return BatchState(tuple(self._run(lambda s: env.advance(s, max_substeps), g)
-                                for env, g in zip(self.envs, state.groups)))
+        return BatchState(
+            tuple(self._run(lambda s: env.advance(s, max_substeps), g) for env, g in zip(self.envs, state.groups))
+        )
 
     def ready(self, state: BatchState) -> jax.Array:
         """[N] bool: the environment has spent its current step's substeps."""
@@ -172,10 +179,15 @@ class PushBatch:
         def one(env):  # per environment: the phase where masked, the old state elsewhere
             def f(s, m, x):
                 return jax.tree.map(lambda n, o: jnp.where(m, n, o), fn(env, s, x), s)
+
             return f
 
-        return BatchState(tuple(self._run(one(env), g, m, x) for env, g, m, x in
-                                zip(self.envs, state.groups, self._split(mask), self._split(per_env))))
+        return BatchState(
+            tuple(
+                self._run(one(env), g, m, x)
+                for env, g, m, x in zip(self.envs, state.groups, self._split(mask), self._split(per_env))
+            )
+        )
 
     def _split(self, x):
         out, i = [], 0

@@ -64,8 +64,14 @@ if not hasattr(jax, "device_put_replicated"):  # jax >= 0.10: brax's trainers st
 
 
 class BraxPushEnv(Env):
-    def __init__(self, config: EnvConfig = EnvConfig(), geom_type: str = "box", observation: str = "latent",
-                 reward: str = "sparse", encoder_params=None):
+    def __init__(
+        self,
+        config: EnvConfig = EnvConfig(),
+        geom_type: str = "box",
+        observation: str = "latent",
+        reward: str = "sparse",
+        encoder_params=None,
+    ):
         if observation not in OBSERVATIONS:
             raise ConfigError(f"observation must be one of {OBSERVATIONS}, got {observation!r}")
         if reward not in REWARDS:
@@ -96,8 +102,14 @@ class BraxPushEnv(Env):
     def reset(self, rng: jax.Array) -> State:
         inner = self._start(rng)
         zero = jnp.zeros((), jnp.float32)
-        return State(pipeline_state=inner, obs=self._obs(inner), reward=zero, done=zero,
-                     metrics=self._metrics(inner), info={"time_out": zero})
+        return State(
+            pipeline_state=inner,
+            obs=self._obs(inner),
+            reward=zero,
+            done=zero,
+            metrics=self._metrics(inner),
+            info={"time_out": zero},
+        )
 
     def step(self, state: State, action: jax.Array) -> State:
         prev = state.pipeline_state
@@ -113,8 +125,14 @@ class BraxPushEnv(Env):
             info["first_obs"] = self._obs(fresh)
         metrics = dict(state.metrics)  # keeps what wrappers added (brax's EvalWrapper: "reward")
         metrics.update(self._metrics(inner))
-        return state.replace(pipeline_state=inner, obs=self._obs(inner), reward=self._reward(inner),
-                             done=broken.astype(jnp.float32), metrics=metrics, info=info)
+        return state.replace(
+            pipeline_state=inner,
+            obs=self._obs(inner),
+            reward=self._reward(inner),
+            done=broken.astype(jnp.float32),
+            metrics=metrics,
+            info=info,
+        )
 
     # --- helpers -------------------------------------------------------------------------------------
     def _start(self, rng: jax.Array) -> State:
@@ -140,8 +158,15 @@ class BraxPushEnv(Env):
             parts = [ee, enc.encode(self.encoder_params, inner.obs["object_mask"]), inner.info["z_goal"]]
         elif self.observation == "state":
             i = inner.info
-            parts = [ee, i["object_xy"], jnp.cos(i["object_yaw"])[None], jnp.sin(i["object_yaw"])[None],
-                     i["goal_xy"], jnp.cos(i["goal_yaw"])[None], jnp.sin(i["goal_yaw"])[None]]
+            parts = [
+                ee,
+                i["object_xy"],
+                jnp.cos(i["object_yaw"])[None],
+                jnp.sin(i["object_yaw"])[None],
+                i["goal_xy"],
+                jnp.cos(i["goal_yaw"])[None],
+                jnp.sin(i["goal_yaw"])[None],
+            ]
         else:
             parts = [ee, inner.obs["object_mask"].reshape(-1), inner.obs["goal_mask"].reshape(-1)]
         return jnp.concatenate([jnp.asarray(p, jnp.float32) for p in parts])

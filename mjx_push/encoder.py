@@ -162,9 +162,14 @@ def load(path: Path | None = None):
     except Exception as e:  # msgpack raises several unrelated types on garbage
         raise ConfigError(f"encoder weights {path} are corrupt or not a msgpack file: {e}") from None
     template = _template()
-    want = {"/".join(str(getattr(k, "key", k)) for k in p): v.shape for p, v in jax.tree_util.tree_leaves_with_path(template)}
+    want = {
+        "/".join(str(getattr(k, "key", k)) for k in p): v.shape
+        for p, v in jax.tree_util.tree_leaves_with_path(template)
+    }
     try:
-        got = {"/".join(str(getattr(k, "key", k)) for k in p): v.shape for p, v in jax.tree_util.tree_leaves_with_path(raw)}
+        got = {
+            "/".join(str(getattr(k, "key", k)) for k in p): v.shape for p, v in jax.tree_util.tree_leaves_with_path(raw)
+        }
     except Exception as e:
         raise ConfigError(f"encoder weights {path} have an unexpected structure: {e}") from None
     if got != want:

@@ -168,9 +168,11 @@ class PushEnv(Env):
 
     def step(self, state: State, action: jax.Array) -> State:
         if "first_pipeline_state" in state.info:  # a static check: info's keys are fixed when tracing
-            raise ConfigError("PushEnv under brax's AutoResetWrapper would replay one object and end an episode "
-                             "at every step (its episodes live in info, which the wrapper does not reset): "
-                             "give brax's trainers mjx_push.brax_env.BraxPushEnv instead")
+            raise ConfigError(
+                "PushEnv under brax's AutoResetWrapper would replay one object and end an episode "
+                "at every step (its episodes live in info, which the wrapper does not reset): "
+                "give brax's trainers mjx_push.brax_env.BraxPushEnv instead"
+            )
         return self.finish_step(self.advance(self.begin_step(state, action)))
 
     # --- the three phases of a step ------------------------------------------------------------------
@@ -231,6 +233,7 @@ class PushEnv(Env):
         if max_substeps is None:
             data, info = jax.lax.while_loop(lambda c: c[1]["substeps_left"] > 0, substep, carry0)
         else:
+
             def masked(carry, _):
                 new = substep(carry)
                 active = carry[1]["substeps_left"] > 0
@@ -269,9 +272,7 @@ class PushEnv(Env):
 
     def _initial_data(self, params: objects.ObjectParams) -> mjx.Data:
         hh = objects.half_height(params, self.geom_type)
-        obj = jnp.concatenate(
-            [params.start[:2], (scene.TABLE_TOP + hh)[None], yaw_quat(params.start[2])]
-        )
+        obj = jnp.concatenate([params.start[:2], (scene.TABLE_TOP + hh)[None], yaw_quat(params.start[2])])
         qpos = jnp.concatenate([jnp.asarray(scene.HOME_QPOS, jnp.result_type(float)), obj])
         data = self._data0.replace(qpos=qpos)
         return mjx.forward(self.model(params), data)
@@ -311,8 +312,6 @@ class PushEnv(Env):
         finite = jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.isfinite(data.qvel))
         x, y, z = data.qpos[a], data.qpos[a + 1], data.qpos[a + 2]
         rest = scene.TABLE_TOP + objects.half_height(params, self.geom_type)
-        on_table = (
-            (x >= scene.TABLE_X[0]) & (x <= scene.TABLE_X[1]) & (y >= scene.TABLE_Y[0]) & (y <= scene.TABLE_Y[1])
-        )
+        on_table = (x >= scene.TABLE_X[0]) & (x <= scene.TABLE_X[1]) & (y >= scene.TABLE_Y[0]) & (y <= scene.TABLE_Y[1])
         in_band = (z > rest - self.config.oob_sink) & (z < rest + self.config.oob_rise)
         return finite & on_table & in_band

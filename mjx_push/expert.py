@@ -136,5 +136,11 @@ def displacement_action(cfg: ExpertConfig, env: EnvConfig, disp: jax.Array, shor
 
 def ground_truth(info: dict, size: jax.Array, is_box) -> dict:
     """The expert's inputs from a `PushEnv` state's info (one environment, or a batch with leading axes)."""
-    return {"ee_xy": info["ee_xy_true"], "object_xy": info["object_xy"], "object_yaw": info["object_yaw"],
-            "goal_xy": info["goal_xy"], "size": size, "is_box": jnp.asarray(is_box)}
+    return {
+        "ee_xy": info["ee_xy_true"],
+        "object_xy": info["object_xy"],
+        "object_yaw": info["object_yaw"],
+        "goal_xy": info["goal_xy"],
+        "size": size,
+        "is_box": jnp.asarray(is_box),
+    }

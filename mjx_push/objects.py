@@ -69,7 +69,9 @@ class ObjectConfig:
         if self.radius[1] > 0.08 or self.side[1] > 0.16:
             raise ConfigError("objects.radius high must be <= 0.08 and objects.side high <= 0.16 (scene limits)")
         if self.shape == "rectangular" and self.side[1] - self.side[0] < RECT_MIN_DIFF:
-            raise ConfigError(f"objects.side must span at least {RECT_MIN_DIFF} for shape 'rectangular', got {self.side}")
+            raise ConfigError(
+                f"objects.side must span at least {RECT_MIN_DIFF} for shape 'rectangular', got {self.side}"
+            )
         if self.mu_k <= 0:
             raise ConfigError(f"objects.mu_k must be > 0, got {self.mu_k}")
         if self.exp_scale <= 0:

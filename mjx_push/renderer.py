@@ -40,6 +40,8 @@ def renderer_available() -> bool:
 def unavailable_reason() -> str:
     """Why rendering fails here, and what to do (for error messages)."""
     backend = os.environ.get("MUJOCO_GL", "the default (GLFW)")
-    return (f"MuJoCo's offscreen renderer is unavailable ({_failure or 'not tried'}; MUJOCO_GL={backend}); "
-            "on a machine without a display install EGL (libegl1, Mesa) and set MUJOCO_GL=egl before Python "
-            "imports mujoco")
+    return (
+        f"MuJoCo's offscreen renderer is unavailable ({_failure or 'not tried'}; MUJOCO_GL={backend}); "
+        "on a machine without a display install EGL (libegl1, Mesa) and set MUJOCO_GL=egl before Python "
+        "imports mujoco"
+    )

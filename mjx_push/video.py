@@ -30,8 +30,12 @@ class EpisodeRenderer:
     def _scene(self, geom_type: str):
         if geom_type not in self._models:
             m = scene.build_model(geom_type)
-            self._models[geom_type] = (m, mujoco.MjData(m), new_renderer(m, self.height, self.width),
-                                       scene.scene_ids(m))
+            self._models[geom_type] = (
+                m,
+                mujoco.MjData(m),
+                new_renderer(m, self.height, self.width),
+                scene.scene_ids(m),
+            )
         return self._models[geom_type]
 
     def frames(self, geom_type: str, size: np.ndarray, goal: np.ndarray, qpos: np.ndarray) -> list[np.ndarray]:
@@ -66,9 +70,14 @@ def _goal_marker(scn, goal: np.ndarray, size: np.ndarray, geom_type: str) -> Non
     mat = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]], dtype=np.float64)
     half_h = size[2] if geom_type == "box" else size[1]
     gtype = mujoco.mjtGeom.mjGEOM_BOX if geom_type == "box" else mujoco.mjtGeom.mjGEOM_CYLINDER
-    mujoco.mjv_initGeom(g, gtype, np.asarray(size, np.float64),
-                        np.array([goal[0], goal[1], scene.TABLE_TOP + half_h], np.float64),
-                        mat.flatten(), np.array([0.1, 0.9, 0.2, 0.35], np.float32))
+    mujoco.mjv_initGeom(
+        g,
+        gtype,
+        np.asarray(size, np.float64),
+        np.array([goal[0], goal[1], scene.TABLE_TOP + half_h], np.float64),
+        mat.flatten(),
+        np.array([0.1, 0.9, 0.2, 0.35], np.float32),
+    )
     scn.ngeom += 1
 
 
@@ -90,8 +99,10 @@ def check_writable(path: Path) -> None:
         try:
             import imageio_ffmpeg  # noqa: F401
         except ImportError:
-            raise ConfigError(f"writing {path.name} (.mp4) needs imageio-ffmpeg: pip install 'mjx-push[mp4]' "
-                             f"(or pip install imageio-ffmpeg), or write a GIF: {path.with_suffix('.gif')}") from None
+            raise ConfigError(
+                f"writing {path.name} (.mp4) needs imageio-ffmpeg: pip install 'mjx-push[mp4]' "
+                f"(or pip install imageio-ffmpeg), or write a GIF: {path.with_suffix('.gif')}"
+            ) from None
     if path.is_dir():
         raise ConfigError(f"{path} is a directory, not a video file")
 

@@ -15,8 +15,10 @@ from tests.helpers import Sim  # noqa: E402
 
 # Persistent compilation cache: repeated local runs skip most compilation; a fresh CI run fills it.
 # MJX_PUSH_TEST_CACHE points it elsewhere (e.g. an empty folder to time a cold run, as CI sees it).
-jax.config.update("jax_compilation_cache_dir",
-                  os.environ.get("MJX_PUSH_TEST_CACHE", os.path.expanduser("~/.cache/mjx_push/jax_tests")))
+jax.config.update(
+    "jax_compilation_cache_dir",
+    os.environ.get("MJX_PUSH_TEST_CACHE", os.path.expanduser("~/.cache/mjx_push/jax_tests")),
+)
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 2.0)
 # Compilation, not execution, is most of the suite's time on CPU, and XLA's optimisation passes most of
 # compilation (an MJX step compiles in about half the time without them and runs at half the speed,
@@ -37,8 +39,11 @@ def pytest_cmdline_main(config):
     """Two worker processes, whole files each (a file's fixtures are compiled once; CI has two cores),
     when pytest-xdist is installed and `-n` was not given; without xdist the suite runs in one process
     (addopts cannot say `-n 2`: pytest rejects the option when the plugin is missing)."""
-    if (config.pluginmanager.hasplugin("xdist") and not hasattr(config, "workerinput")
-            and config.option.numprocesses is None):
+    if (
+        config.pluginmanager.hasplugin("xdist")
+        and not hasattr(config, "workerinput")
+        and config.option.numprocesses is None
+    ):
         config.option.numprocesses = 2
         if config.option.dist == "no":
             config.option.dist = "loadfile"

@@ -20,8 +20,10 @@ from train import run as run_mod
 from tests.toy import make_toy
 
 # The test process's compilation cache (tests/conftest.py): the toy trainer is compiled there already.
-jax.config.update("jax_compilation_cache_dir",
-                  os.environ.get("MJX_PUSH_TEST_CACHE", os.path.expanduser("~/.cache/mjx_push/jax_tests")))
+jax.config.update(
+    "jax_compilation_cache_dir",
+    os.environ.get("MJX_PUSH_TEST_CACHE", os.path.expanduser("~/.cache/mjx_push/jax_tests")),
+)
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 2.0)
 if os.environ.get("MJX_PUSH_TEST_OPTIMIZE") != "1":  # as tests/conftest.py, so the compiled code is shared
     jax.config.update("jax_disable_most_optimizations", True)

@@ -15,12 +15,23 @@ B = 4  # every physics test uses this batch size, so each compiled function is b
 HOME_XY = scene.home_flange_pos()[:2]
 
 
-def make_params(geom_type: str, *, sides=(0.08, 0.06), radius=0.05, height=0.05, mass=0.2, friction=0.5,
-                start=(0.1, 0.08, 0.0), goal=(0.05, -0.05, 0.0)) -> objects.ObjectParams:
+def make_params(
+    geom_type: str,
+    *,
+    sides=(0.08, 0.06),
+    radius=0.05,
+    height=0.05,
+    mass=0.2,
+    friction=0.5,
+    start=(0.1, 0.08, 0.0),
+    goal=(0.05, -0.05, 0.0),
+) -> objects.ObjectParams:
     """One object; start and goal are offsets from the home flange xy plus a yaw."""
     if geom_type == "box":
         size = np.array([sides[0] / 2, sides[1] / 2, height / 2])
-        inertia = mass / 12 * np.array([sides[1] ** 2 + height**2, sides[0] ** 2 + height**2, sides[0] ** 2 + sides[1] ** 2])
+        inertia = (
+            mass / 12 * np.array([sides[1] ** 2 + height**2, sides[0] ** 2 + height**2, sides[0] ** 2 + sides[1] ** 2])
+        )
     else:
         size = np.array([radius, height / 2, 0.0])
         ixx = mass * (3 * radius**2 + height**2) / 12
@@ -28,8 +39,14 @@ def make_params(geom_type: str, *, sides=(0.08, 0.06), radius=0.05, height=0.05,
     s = np.array([HOME_XY[0] + start[0], HOME_XY[1] + start[1], start[2]])
     g = np.array([HOME_XY[0] + goal[0], HOME_XY[1] + goal[1], goal[2]])
     f = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
-    return objects.ObjectParams(size=f(size), mass=f(mass), inertia=f(inertia),
-                                friction=f([friction, 0.005, scene.OBJECT_ROLL_FRICTION]), start=f(s), goal=f(g))
+    return objects.ObjectParams(
+        size=f(size),
+        mass=f(mass),
+        inertia=f(inertia),
+        friction=f([friction, 0.005, scene.OBJECT_ROLL_FRICTION]),
+        start=f(s),
+        goal=f(g),
+    )
 
 
 def stack(params_list):
@@ -71,8 +88,15 @@ def tiny_run_config(agent: str, encoder_path: str):
         cfg.train,
         sac=dataclasses.replace(cfg.train.sac, batch_size=4, bc_batch_size=4),
         replay=ReplayConfig(capacity_transitions=60),
-        loop=LoopConfig(num_envs=2, episode_len=3, total_env_steps=12, warmup_env_steps=6, utd=0.5,
-                        eval_every_env_steps=6, eval_episodes=2),
+        loop=LoopConfig(
+            num_envs=2,
+            episode_len=3,
+            total_env_steps=12,
+            warmup_env_steps=6,
+            utd=0.5,
+            eval_every_env_steps=6,
+            eval_episodes=2,
+        ),
     )
     return dataclasses.replace(cfg, env=env, train=t, encoder=encoder_path)
 
@@ -88,16 +112,36 @@ def toy_run_config(encoder, kind="ugru", seed=0):
     from train.presets import RunConfig
 
     train_cfg = TrainConfig(
-        agent=AgentConfig(kind, hidden=(32, 32), gru_hidden=8, critic_hidden=(32, 32), obs_norm=True,
-                          critic_obs="privileged", critic_layer_norm=True),
+        agent=AgentConfig(
+            kind,
+            hidden=(32, 32),
+            gru_hidden=8,
+            critic_hidden=(32, 32),
+            obs_norm=True,
+            critic_obs="privileged",
+            critic_layer_norm=True,
+        ),
         sac=SACConfig(batch_size=16, bc_weight=1.0, bc_batch_size=8, target_clip=True),
         demo=DemoConfig(warmup=True, fraction=0.25, noise=0.1, label_all=True),
         replay=ReplayConfig(capacity_transitions=2_000, success_tau=TOY_TAU),
-        loop=LoopConfig(num_envs=4, episode_len=10, total_env_steps=200, warmup_env_steps=80, utd=0.25,
-                        eval_every_env_steps=80, eval_episodes=6, seed=seed),
+        loop=LoopConfig(
+            num_envs=4,
+            episode_len=10,
+            total_env_steps=200,
+            warmup_env_steps=80,
+            utd=0.25,
+            eval_every_env_steps=80,
+            eval_episodes=6,
+            seed=seed,
+        ),
     )
-    return RunConfig(agent=kind, preset="smoke", train=train_cfg,
-                     env=EnvConfig(episode_length=10, success_tau=TOY_TAU), encoder=encoder)
+    return RunConfig(
+        agent=kind,
+        preset="smoke",
+        train=train_cfg,
+        env=EnvConfig(episode_length=10, success_tau=TOY_TAU),
+        encoder=encoder,
+    )
 
 
 def latest_state(run_dir, cfg, adapter):

@@ -60,8 +60,12 @@ def test_step_phases_in_chunks_give_the_steps_result(batch):
     a_s = jnp.asarray([a_s_for(int(k), lo, hi) for k in n])
     a = jnp.concatenate([jax.random.uniform(jax.random.PRNGKey(6), (4, 2), minval=-1, maxval=1), a_s[:, None]], 1)
     want = batch.jit_step(state, a)
-    begin, advance, ready, finish = (jax.jit(batch.begin), jax.jit(batch.advance, static_argnums=1),
-                                     jax.jit(batch.ready), jax.jit(batch.finish))
+    begin, advance, ready, finish = (
+        jax.jit(batch.begin),
+        jax.jit(batch.advance, static_argnums=1),
+        jax.jit(batch.ready),
+        jax.jit(batch.finish),
+    )
     s = begin(state, a, jnp.ones(4, bool))
     finished = np.zeros(4, bool)
     while not finished.all():
@@ -70,9 +74,15 @@ def test_step_phases_in_chunks_give_the_steps_result(batch):
         s = finish(s, jnp.asarray(done))
         finished |= done
     np.testing.assert_array_equal(np.asarray(s.info["substeps"]), n)
-    for get in (lambda x: x.obs["ee_xy"], lambda x: x.obs["object_mask"], lambda x: x.info["object_xy"],
-                lambda x: x.info["ee_xy_true"], lambda x: x.info["step"], lambda x: x.reward,
-                lambda x: x.info["corrections"].distance):
+    for get in (
+        lambda x: x.obs["ee_xy"],
+        lambda x: x.obs["object_mask"],
+        lambda x: x.info["object_xy"],
+        lambda x: x.info["ee_xy_true"],
+        lambda x: x.info["step"],
+        lambda x: x.reward,
+        lambda x: x.info["corrections"].distance,
+    ):
         np.testing.assert_allclose(np.asarray(get(s), np.float64), np.asarray(get(want), np.float64), atol=1e-6)
 
 
@@ -141,8 +151,11 @@ def test_the_batch_is_split_over_the_host_devices_and_steps_as_on_one(batch):
         assert len(s.pipeline_state.qpos.sharding.device_set) == 2  # each group lives on both devices
     # The same physics, up to float rounding (XLA fuses a batch of 1 and of 2 differently).
     a, b = split[-1], single[-1]
-    np.testing.assert_allclose(np.asarray(a.cat(lambda s: s.pipeline_state.qpos)),
-                               np.asarray(b.cat(lambda s: s.pipeline_state.qpos)), atol=1e-5)
+    np.testing.assert_allclose(
+        np.asarray(a.cat(lambda s: s.pipeline_state.qpos)),
+        np.asarray(b.cat(lambda s: s.pipeline_state.qpos)),
+        atol=1e-5,
+    )
     for key in ("object_xy", "ee_xy_true", "substeps", "step"):
         np.testing.assert_allclose(np.asarray(a.info[key]), np.asarray(b.info[key]), atol=1e-5)
     np.testing.assert_array_equal(np.asarray(a.reward), np.asarray(b.reward))

@@ -23,8 +23,7 @@ def wrapped():
     cfg = EnvConfig()
     lo = cfg.substeps[0]
     # Short steps: this is about episode bookkeeping, not pushing.
-    env = BraxPushEnv(dataclasses.replace(cfg, substeps=(lo, lo + 10), episode_length=L), "box",
-                      observation="state")
+    env = BraxPushEnv(dataclasses.replace(cfg, substeps=(lo, lo + 10), episode_length=L), "box", observation="state")
     w = brax_training.wrap(env, episode_length=env.episode_length)
     return env, jax.jit(w.reset), jax.jit(w.step)
 

@@ -24,8 +24,6 @@ def _np_params(p):
     return jax.tree.map(np.asarray, p)
 
 
-
-
 @pytest.fixture(scope="module")
 def box_env():
     return CpuPushEnv(geom_type="box", mask_source="analytic", seed=0)
@@ -37,8 +35,14 @@ def test_flange_trajectory_matches_mjx(box_sim):
     params = [make_params("box", start=(-0.12, -0.1, 0.3))] * B
     rng = np.random.default_rng(0)
     steps = 12
-    acts = np.stack([rng.uniform(-0.04, 0.08, (steps, B)), rng.uniform(-0.08, 0.08, (steps, B)),
-                     rng.uniform(-1.0, 0.0, (steps, B))], axis=-1).astype(np.float32)
+    acts = np.stack(
+        [
+            rng.uniform(-0.04, 0.08, (steps, B)),
+            rng.uniform(-0.08, 0.08, (steps, B)),
+            rng.uniform(-1.0, 0.0, (steps, B)),
+        ],
+        axis=-1,
+    ).astype(np.float32)
     acts[3, 0, :2] = (0.6, 0.0)  # one target clipped to the workspace edge (x 0.65), crossing open space
     state = box_sim.start(params)
     ee_mjx, n_mjx, obj_mjx = [np.asarray(state.info["ee_xy_true"])], [], []
@@ -204,7 +208,9 @@ def test_corrections_port_matches_jax():
     """Counter trajectories of the NumPy port equal mjx_push.corrections on scripted distance sequences."""
     rng = np.random.default_rng(5)
     pieces = [
-        np.linspace(0.05, 0.005, 20), np.linspace(0.005, 0.021, 10), np.linspace(0.021, 0.004, 10),  # overshoot
+        np.linspace(0.05, 0.005, 20),
+        np.linspace(0.005, 0.021, 10),
+        np.linspace(0.021, 0.004, 10),  # overshoot
         np.tile(np.concatenate([np.linspace(0.02, 0.04, 5), np.linspace(0.04, 0.02, 5)]), 3),  # oscillation
         [0.00999, 0.010005, 0.00999, 0.010005, 0.00999],  # jitter inside the dead band
         [0.0099, 0.01001, 0.0099, 0.0101, np.nan, 0.02, 0.005],

@@ -233,8 +233,9 @@ def test_run_episode_sanitises_and_validates_policy_output():
         run_episode(ScriptedPolicy(0.0, 0.0, 10), robot, cam, MaskPipeline(), np.zeros((32, 32)), steps=1)
     with pytest.raises(ValueError, match="workspace"):
         run_episode(ScriptedPolicy(0.0, 0.0, 10), robot, cam, MaskPipeline(), env.goal_mask, workspace=((1, 0), (0, 1)))
-    stops = run_episode(ScriptedPolicy(0.0, 0.0, 10), robot, cam, MaskPipeline(), env.goal_mask, steps=5,
-                        on_step=lambda t, rec: t == 1)
+    stops = run_episode(
+        ScriptedPolicy(0.0, 0.0, 10), robot, cam, MaskPipeline(), env.goal_mask, steps=5, on_step=lambda t, rec: t == 1
+    )
     assert stops["steps"] == 2 and stops["ee_xy"].shape == (3, 2)
 
 
@@ -273,8 +274,15 @@ def test_run_episode_with_rendered_camera():
     camera = SimCamera(env, size=128)  # a 2x larger frame: the pipeline's area resize is in the loop
     policy = StandOffPolicy(scene.TABLE_TOP + float(env.params.size[2]))
     ious = []
-    out = run_episode(policy, SimRobot(env), camera, MaskPipeline(), env.goal_mask, steps=8,
-                      on_step=lambda t, rec: ious.append(_iou_with_analytic(env, rec["object_mask"])))
+    out = run_episode(
+        policy,
+        SimRobot(env),
+        camera,
+        MaskPipeline(),
+        env.goal_mask,
+        steps=8,
+        on_step=lambda t, rec: ious.append(_iou_with_analytic(env, rec["object_mask"])),
+    )
     assert min(ious) >= 0.9, f"pipeline vs analytic IoU {min(ious):.3f}"
     # The mask-located stand-off point is within 5 mm of the true one, and the flange got there (a few mm).
     obj = env.info()["object_xy"]
@@ -304,7 +312,6 @@ def test_sim_robot_home_and_validation():
         robot.move_to(np.array([0.4, np.nan, 0.5]))
     with pytest.raises(ValueError, match="target"):
         robot.move_to(np.zeros(2))
-
 
 
 def test_the_panda_py_robot_sketch_fits_the_robot_interface():

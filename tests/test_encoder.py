@@ -20,8 +20,12 @@ def held_out():
 def test_architecture_matches_the_spec():
     params = enc.init_vae(jax.random.PRNGKey(0))
     e = params["encoder"]
-    assert [e[f"Conv_{i}"]["kernel"].shape for i in range(4)] == [(4, 4, 1, 32), (4, 4, 32, 64), (4, 4, 64, 128),
-                                                                  (4, 4, 128, 256)]
+    assert [e[f"Conv_{i}"]["kernel"].shape for i in range(4)] == [
+        (4, 4, 1, 32),
+        (4, 4, 32, 64),
+        (4, 4, 64, 128),
+        (4, 4, 128, 256),
+    ]
     assert e["Dense_0"]["kernel"].shape == (2 * 2 * 256, 256)
     assert e["mean"]["kernel"].shape == (256, 6) and e["logvar"]["kernel"].shape == (256, 6)
     x = jnp.zeros((3, 64, 64))

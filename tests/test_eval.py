@@ -23,15 +23,18 @@ def test_sem_is_the_sample_std_over_sqrt_n():
     assert sem([1.0, 2.0, 3.0, 4.0]) == pytest.approx(math.sqrt(5 / 3) / 2)
     assert sem([0.0, 0.0, 1.0, 1.0]) == pytest.approx(math.sqrt(1 / 3) / 2)
     assert sem([7.0]) == 0.0
-    s = summarize({"success": [1, 0, 1, 1], "reward": [-3, -50, 0, -1], "overshoot": [0, 0, 0, 0],
-                   "distance": [2, 1, 0, 1]})
+    s = summarize(
+        {"success": [1, 0, 1, 1], "reward": [-3, -50, 0, -1], "overshoot": [0, 0, 0, 0], "distance": [2, 1, 0, 1]}
+    )
     assert s["success"] == {"mean": 0.75, "sem": pytest.approx(0.25), "n": 4}
     assert s["reward"]["mean"] == -13.5 and s["overshoot"]["sem"] == 0.0
 
 
 def test_seeds_combine_with_the_sem_across_seed_means():
-    per_seed = [summarize({"success": [1, 1], "reward": [0, 0], "overshoot": [1, 1], "distance": [0, 2]}),
-                summarize({"success": [0, 1], "reward": [-50, 0], "overshoot": [0, 0], "distance": [1, 1]})]
+    per_seed = [
+        summarize({"success": [1, 1], "reward": [0, 0], "overshoot": [1, 1], "distance": [0, 2]}),
+        summarize({"success": [0, 1], "reward": [-50, 0], "overshoot": [0, 0], "distance": [1, 1]}),
+    ]
     c = report.combine(per_seed)
     assert c["success"]["mean"] == 0.75 and c["success"]["sem"] == pytest.approx(sem([1.0, 0.5]))
     assert c["reward"]["n_episodes"] == 4 and c["reward"]["n_seeds"] == 2
@@ -40,12 +43,15 @@ def test_seeds_combine_with_the_sem_across_seed_means():
 
 
 # --- bad input ----------------------------------------------------------------------------------------
-@pytest.mark.parametrize("kwargs, message", [
-    (dict(setting="hard"), "setting must be one of"),
-    (dict(shape="sphere"), "shape must be one of"),
-    (dict(episodes=0), "episodes must be a positive integer"),
-    (dict(mass=(0.1, 0.2)), "need setting 'custom'"),
-])
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        (dict(setting="hard"), "setting must be one of"),
+        (dict(shape="sphere"), "shape must be one of"),
+        (dict(episodes=0), "episodes must be a positive integer"),
+        (dict(mass=(0.1, 0.2)), "need setting 'custom'"),
+    ],
+)
 def test_bad_evaluation_settings_are_named(kwargs, message):
     with pytest.raises(ValueError, match=message):
         EvalSpec(**kwargs)
@@ -102,10 +108,12 @@ def test_scripted_pushes_give_the_known_correction_counts(box_sim):
     # Env 1's goal is 2 cm ahead and the push aims 13 cm further, so the object leaves the disc fast: an
     # exit counts only when its substep jumps more than eps = 2e-5 m past tau (docs/task.md section 7); a slow
     # exit (under ~0.04 m/s) may go uncounted.
-    params = [make_params("box", sides=(0.06, 0.06), start=start, goal=goal),
-              make_params("box", sides=(0.06, 0.06), start=start, goal=(0.12, 0.0, 0.0)),
-              make_params("box", sides=(0.06, 0.06), start=start, goal=(0.115, 0.0, 0.0)),
-              make_params("box", sides=(0.06, 0.06), start=start, goal=start)]
+    params = [
+        make_params("box", sides=(0.06, 0.06), start=start, goal=goal),
+        make_params("box", sides=(0.06, 0.06), start=start, goal=(0.12, 0.0, 0.0)),
+        make_params("box", sides=(0.06, 0.06), start=start, goal=(0.115, 0.0, 0.0)),
+        make_params("box", sides=(0.06, 0.06), start=start, goal=start),
+    ]
     s = box_sim.start(params)
     rod_r = scene.ROD_RADIUS  # contact when the rod's axis is 3 cm + r behind the box centre
     # Flange x targets (relative to home) per env: stay; push the object's centre to 0.25 (past 0.12);
@@ -165,7 +173,9 @@ def test_the_same_seeds_give_the_same_episodes_to_every_policy(tiny_egru_run, ev
             goal = r["params"].goal[:2]
             assert per["start_distance"][i] == pytest.approx(np.linalg.norm(r["params"].start[:2] - goal), abs=1e-6)
             if not per["invalid"][i]:
-                assert per["final_distance"][i] == pytest.approx(np.linalg.norm(r["qpos"][-1][obj:obj + 2] - goal), abs=1e-6)
+                assert per["final_distance"][i] == pytest.approx(
+                    np.linalg.norm(r["qpos"][-1][obj : obj + 2] - goal), abs=1e-6
+                )
         np.testing.assert_array_equal(per["success"], (per["final_distance"] < 0.01) & ~per["invalid"])
     np.testing.assert_array_equal(a["per_episode"]["start_distance"], b["per_episode"]["start_distance"])
     # Episodes do not depend on the batch they were simulated in.
@@ -186,8 +196,9 @@ def test_report_end_to_end_from_a_trained_checkpoint(tiny_egru_run, evaluator, t
         for shape in ("cylinder",):
             res = evaluator.evaluate(policy, EvalSpec(setting="difficult", shape=shape, episodes=2, batch=2))
             results[agent][shape] = [res["summary"]]
-    path = report.write_report(tmp_path, results, {"budget": "smoke", "seeds": 1, "episodes": 2,
-                                                   "setting": "difficult", "wall_s": 1.0})
+    path = report.write_report(
+        tmp_path, results, {"budget": "smoke", "seeds": 1, "episodes": 2, "setting": "difficult", "wall_s": 1.0}
+    )
     text = path.read_text()
     assert "| cylinder | eGRU |" in text and "| cylinder | VPM |" in text
     d = results["egru"]["cylinder"][0]
@@ -225,8 +236,29 @@ def test_eval_cli_writes_json_and_a_video(tiny_egru_run, tmp_path):
     _, d, _, _ = tiny_egru_run
     out = tmp_path / "eval.json"
     gif = tmp_path / "episodes.gif"
-    assert cli_main(["eval", str(d), "--episodes", "2", "--batch", "2", "--shape", "cylinder",
-                     "--setting", "standard", "--out", str(out), "--video", str(gif), "--video-episodes", "1"]) == 0
+    assert (
+        cli_main(
+            [
+                "eval",
+                str(d),
+                "--episodes",
+                "2",
+                "--batch",
+                "2",
+                "--shape",
+                "cylinder",
+                "--setting",
+                "standard",
+                "--out",
+                str(out),
+                "--video",
+                str(gif),
+                "--video-episodes",
+                "1",
+            ]
+        )
+        == 0
+    )
     rec = json.loads(out.read_text())
     assert set(rec["summary"]) == {"success", "reward", "overshoot", "distance", "start_distance", "final_distance"}
     assert len(rec["per_episode"]["reward"]) == 2
@@ -252,8 +284,17 @@ def test_reproduce_reuses_the_run_and_caches_each_evaluation(tiny_egru_run, eval
 
     def go():
         lines: list[str] = []
-        rep.reproduce("smoke", 1, out, episodes=2, agents=("egru",), shapes=("cylinder",), log=lines.append,
-                      config_hook=lambda _: cfg, expert=False)  # the expert's row: tests/test_expert.py
+        rep.reproduce(
+            "smoke",
+            1,
+            out,
+            episodes=2,
+            agents=("egru",),
+            shapes=("cylinder",),
+            log=lines.append,
+            config_hook=lambda _: cfg,
+            expert=False,
+        )  # the expert's row: tests/test_expert.py
         summary = json.loads((out / "results.json").read_text())["combined"]["egru"]["cylinder"]
         return "\n".join(lines), summary
 
@@ -286,8 +327,18 @@ def test_reproduce_reuses_the_run_and_caches_each_evaluation(tiny_egru_run, eval
 
     # The report from whatever has finished: the eGRU run (its evaluation reused), not the absent VPM run.
     lines: list[str] = []
-    rep.reproduce("smoke", 1, out, episodes=2, agents=("egru", "vpm"), shapes=("cylinder",), log=lines.append,
-                  config_hook=lambda _: cfg, expert=False, report_only=True)
+    rep.reproduce(
+        "smoke",
+        1,
+        out,
+        episodes=2,
+        agents=("egru", "vpm"),
+        shapes=("cylinder",),
+        log=lines.append,
+        config_hook=lambda _: cfg,
+        expert=False,
+        report_only=True,
+    )
     assert "reusing evaluation" in "\n".join(lines)
     assert f"{out / 'runs' / 'vpm-s0'} has not finished: left out of the report" in lines
     results = json.loads((out / "results.json").read_text())
@@ -356,11 +407,34 @@ def test_reproduce_plan_lists_one_command_per_job_then_the_report(tmp_path, caps
 
     lines = rep.plan("cpu-long", 2, tmp_path, ("vpm", "egru"))
     base = f"mjx-push reproduce --budget cpu-long --out {tmp_path}"
-    assert lines == [f"{base} --job vpm:0", f"{base} --job egru:0", f"{base} --job vpm:1", f"{base} --job egru:1",
-                     f"{base} --job expert", f"{base} --seeds 2 --agents vpm egru --report-only"]
+    assert lines == [
+        f"{base} --job vpm:0",
+        f"{base} --job egru:0",
+        f"{base} --job vpm:1",
+        f"{base} --job egru:1",
+        f"{base} --job expert",
+        f"{base} --seeds 2 --agents vpm egru --report-only",
+    ]
     plan_file = tmp_path / "plan.txt"
-    assert cli_main(["reproduce", "--budget", "cpu-long", "--seeds", "2", "--agents", "vpm", "egru", "--out",
-                     str(tmp_path), "--plan", str(plan_file)]) == 0
+    assert (
+        cli_main(
+            [
+                "reproduce",
+                "--budget",
+                "cpu-long",
+                "--seeds",
+                "2",
+                "--agents",
+                "vpm",
+                "egru",
+                "--out",
+                str(tmp_path),
+                "--plan",
+                str(plan_file),
+            ]
+        )
+        == 0
+    )
     assert plan_file.read_text().splitlines() == lines
     assert cli_main(["reproduce", "--job", "dqn:0"]) == 2
     assert "--job must be AGENT:SEED" in capsys.readouterr().err

@@ -43,8 +43,11 @@ ATOL = 1e-5
 def _randomize_biases(tree, rng: np.random.Generator):
     """flax initialises biases at zero, which would hide a misplaced bias (e.g. the GRU's hn bias)."""
     return jax.tree_util.tree_map_with_path(
-        lambda path, v: v + 0.1 * rng.standard_normal(v.shape).astype(np.float32)
-        if getattr(path[-1], "key", None) == "bias" else v, tree)
+        lambda path, v: (
+            v + 0.1 * rng.standard_normal(v.shape).astype(np.float32) if getattr(path[-1], "key", None) == "bias" else v
+        ),
+        tree,
+    )
 
 
 # uGRU as the reference preset trains it (no input normalisation); the others as the measured presets
@@ -62,11 +65,14 @@ def _policy(kind: str, encoder_params, seed: int) -> tuple[Policy, object]:
     actor["params"]["mean_head"] = {k: v * HEAD_GAIN for k, v in head.items()}
     assert ("norm" in actor) == cfg.train.agent.obs_norm
     if cfg.train.agent.obs_norm:
-        actor["norm"] = {"norm": {
-            "ee_xy_mean": jnp.asarray(scene.home_flange_pos()[:2] + 0.01, jnp.float32),
-            "ee_xy_std": jnp.asarray([0.05, 0.08], jnp.float32),
-            "z_mean": jnp.asarray(rng.normal(size=6), jnp.float32),
-            "z_std": jnp.asarray(rng.uniform(0.2, 3.0, 6), jnp.float32)}}
+        actor["norm"] = {
+            "norm": {
+                "ee_xy_mean": jnp.asarray(scene.home_flange_pos()[:2] + 0.01, jnp.float32),
+                "ee_xy_std": jnp.asarray([0.05, 0.08], jnp.float32),
+                "z_mean": jnp.asarray(rng.normal(size=6), jnp.float32),
+                "z_std": jnp.asarray(rng.uniform(0.2, 3.0, 6), jnp.float32),
+            }
+        }
     scores = {"best_eval_mean_reward": -42.0, "best_eval_success_rate": float("nan")}
     return Policy(cfg, actor, encoder_params, scores), nets
 
@@ -159,12 +165,16 @@ def test_numpy_and_torch_match_jax_over_an_episode(kind, exported, jax_encode):
     ee_obs, a_jax = [], []
     for t in range(50):
         ee_obs.append(ee + cfg.obs_noise * rng.normal(size=2))
-        step = {"ee_xy": jnp.asarray(ee_obs[t][None], jnp.float32),
-                "z_obj": jax_encode(policy.encoder_params, masks[t][None]), "z_goal": z_goal}
+        step = {
+            "ee_xy": jnp.asarray(ee_obs[t][None], jnp.float32),
+            "z_obj": jax_encode(policy.encoder_params, masks[t][None]),
+            "z_goal": z_goal,
+        }
         a, carry = act(carry, step)
         a_jax.append(np.asarray(a[0]))
-        ee = np.clip(ee + 0.05 * a_jax[t][:2], [cfg.workspace_x[0], cfg.workspace_y[0]],
-                     [cfg.workspace_x[1], cfg.workspace_y[1]])
+        ee = np.clip(
+            ee + 0.05 * a_jax[t][:2], [cfg.workspace_x[0], cfg.workspace_y[0]], [cfg.workspace_x[1], cfg.workspace_y[1]]
+        )
     worst = [0.0] * len(others)
     for t in range(50):
         raw = [p.act_raw(masks[t], goal_mask, ee_obs[t]) for p in others]
@@ -305,17 +315,25 @@ def test_load_errors_name_the_file_and_the_problem(exported, tmp_path):
         "not an .npz": tmp_path / "text.npz",
         "truncated": tmp_path / "truncated.npz",
         "lacks 1 array": _rewrite(src, tmp_path / "missing_array.npz", lambda a: a.pop("actor/mean_head/bias")),
-        "has shape": _rewrite(src, tmp_path / "shape.npz",
-                              lambda a: a.update({"actor/features/cell/hn/kernel": np.zeros((32, 31), np.float32)})),
+        "has shape": _rewrite(
+            src,
+            tmp_path / "shape.npz",
+            lambda a: a.update({"actor/features/cell/hn/kernel": np.zeros((32, 31), np.float32)}),
+        ),
         "format version 2": _rewrite(src, tmp_path / "version.npz", lambda a: _set_meta(a, format_version=2)),
         "no '__metadata__'": _rewrite(src, tmp_path / "nometa.npz", lambda a: a.pop(pfile.METADATA_KEY)),
         "not an mjx-push NumPy policy": _rewrite(src, tmp_path / "fmt.npz", lambda a: _set_meta(a, format="other")),
-        "dtype float64": _rewrite(src, tmp_path / "f64.npz",
-                                  lambda a: a.update({"encoder/mean/bias": a["encoder/mean/bias"].astype(np.float64)})),
-        "non-finite": _rewrite(src, tmp_path / "nan.npz",
-                               lambda a: a.update({"encoder/mean/bias": np.full(6, np.nan, np.float32)})),
-        "does not describe": _rewrite(src, tmp_path / "extra.npz",
-                                      lambda a: a.update({"extra": np.zeros(1, np.float32)})),
+        "dtype float64": _rewrite(
+            src,
+            tmp_path / "f64.npz",
+            lambda a: a.update({"encoder/mean/bias": a["encoder/mean/bias"].astype(np.float64)}),
+        ),
+        "non-finite": _rewrite(
+            src, tmp_path / "nan.npz", lambda a: a.update({"encoder/mean/bias": np.full(6, np.nan, np.float32)})
+        ),
+        "does not describe": _rewrite(
+            src, tmp_path / "extra.npz", lambda a: a.update({"extra": np.zeros(1, np.float32)})
+        ),
     }
     (tmp_path / "text.npz").write_text("not a zip at all")
     (tmp_path / "truncated.npz").write_bytes(data[: len(data) // 2])
@@ -398,8 +416,9 @@ def test_torch_module_batches_like_the_numpy_policy(exported):
     np.testing.assert_allclose(z.numpy(), p.encode(masks), atol=ATOL)
     for i in range(3):
         p.reset()
-        np.testing.assert_allclose(a[i].numpy(), p.step_latent(p.encode(masks[i]), p.encode(masks[2 - i]), ee[i]),
-                                   atol=ATOL)
+        np.testing.assert_allclose(
+            a[i].numpy(), p.step_latent(p.encode(masks[i]), p.encode(masks[2 - i]), ee[i]), atol=ATOL
+        )
 
 
 # --- the commands ----------------------------------------------------------------------------------
@@ -443,8 +462,14 @@ def test_deploy_command_writes_the_metrics_of_evals_episodes(exported, tmp_path)
     result = Deploy(policy=quick, episodes=3, seed=3, mask_source="analytic", out=out).run()
     saved = json.loads(out.read_text())
     assert saved["summary"] == result["summary"]
-    assert set(saved["summary"]) == {"success", "reward", "overshoot", "distance", "start_distance",
-                                     "final_distance"}  # the table of mjx-push eval
+    assert set(saved["summary"]) == {
+        "success",
+        "reward",
+        "overshoot",
+        "distance",
+        "start_distance",
+        "final_distance",
+    }  # the table of mjx-push eval
     for m in saved["summary"].values():
         assert set(m) == {"mean", "sem", "n"} and m["n"] == 3
     assert -50.0 <= saved["summary"]["reward"]["mean"] <= 0.0
@@ -458,14 +483,17 @@ def test_deploy_command_writes_the_metrics_of_evals_episodes(exported, tmp_path)
     assert saved["mask_source"] == "analytic"
 
 
-@pytest.mark.parametrize("field, value, match", [
-    ("episodes", 0, "--episodes"),
-    ("mask_source", "camera", "--mask-source"),
-    ("sim", "mjx", "--sim"),
-    ("video", Path("out.avi"), "--video"),
-    ("mass", (0.1, 0.2), "--mass needs --setting custom"),
-    ("policy", Path("/nonexistent/policy.npz"), "POLICY.npz /nonexistent/policy.npz: no such file"),
-])
+@pytest.mark.parametrize(
+    "field, value, match",
+    [
+        ("episodes", 0, "--episodes"),
+        ("mask_source", "camera", "--mask-source"),
+        ("sim", "mjx", "--sim"),
+        ("video", Path("out.avi"), "--video"),
+        ("mass", (0.1, 0.2), "--mass needs --setting custom"),
+        ("policy", Path("/nonexistent/policy.npz"), "POLICY.npz /nonexistent/policy.npz: no such file"),
+    ],
+)
 def test_deploy_rejects_bad_arguments(exported, field, value, match):
     args = {"policy": exported["vpm"][2], "episodes": 1, "mask_source": "analytic", field: value}
     with pytest.raises(ValueError, match=match):
@@ -522,8 +550,9 @@ def test_package_encoder_reference_loads_the_same_policy_at_a_fraction_of_the_si
     np.testing.assert_array_equal(p.act(m[0], g, np.array([0.4, 0.0])), q.act(m[0], g, np.array([0.4, 0.0])))
 
 
-def test_package_encoder_reference_is_refused_when_the_encoder_differs(package_exported, exported, tmp_path,
-                                                                       monkeypatch):
+def test_package_encoder_reference_is_refused_when_the_encoder_differs(
+    package_exported, exported, tmp_path, monkeypatch
+):
     policy, _, _ = exported["vpm"]  # a random encoder, not the package's
     with pytest.raises(ValueError, match="this policy's encoder is not the one the package ships"):
         pfile.export_policy(policy, tmp_path / "x.npz", encoder="package")
@@ -553,12 +582,16 @@ def test_pretrained_names_resolve_for_eval_and_deploy(package_exported, tmp_path
     monkeypatch.setattr(pretrained, "DIRECTORY", shipped)
     assert pretrained.available() == {"egru": shipped / "egru.npz"}
     assert pretrained.resolve("runs/x") == Path("runs/x")  # not a reference: a path
-    with pytest.raises(ValueError, match="unknown pretrained policy 'pretrained:vpm': this mjx-push ships pretrained:egru"):
+    with pytest.raises(
+        ValueError, match="unknown pretrained policy 'pretrained:vpm': this mjx-push ships pretrained:egru"
+    ):
         pretrained.resolve("pretrained:vpm")
     policy = Eval(policy=Path("pretrained:egru")).resolve(Path("pretrained:egru"))
     assert policy.config.agent == "egru"
-    np.testing.assert_array_equal(policy.actor_params["params"]["mean_head"]["kernel"],
-                                  package_exported[0].actor_params["params"]["mean_head"]["kernel"])
+    np.testing.assert_array_equal(
+        policy.actor_params["params"]["mean_head"]["kernel"],
+        package_exported[0].actor_params["params"]["mean_head"]["kernel"],
+    )
     d = Deploy(policy=Path("pretrained:egru"), episodes=1)
     d._check()
     assert d.policy == shipped / "egru.npz"

@@ -110,8 +110,7 @@ def test_headless_make_renders_and_passes_the_checkers():
         "print('ok', env.unwrapped.mask_source)\n"
     )
     clean = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "MUJOCO_GL", "WAYLAND_DISPLAY")}
-    r = subprocess.run([sys.executable, "-c", code], cwd=REPO, env=clean, capture_output=True, text=True,
-                       timeout=300)
+    r = subprocess.run([sys.executable, "-c", code], cwd=REPO, env=clean, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0 and "ok render" in r.stdout, r.stdout[-2000:] + r.stderr[-4000:]
 
 
@@ -125,8 +124,9 @@ class _GroundTruth(gymnasium.Wrapper):
 
     def reset(self, **kwargs):
         obs, info = self.env.reset(**kwargs)
-        self.episodes.append({"goal": np.array(info["goal_xy"], np.float64),
-                              "positions": [np.array(info["object_xy"], np.float64)]})
+        self.episodes.append(
+            {"goal": np.array(info["goal_xy"], np.float64), "positions": [np.array(info["object_xy"], np.float64)]}
+        )
         return obs, info
 
     def step(self, action):
@@ -149,8 +149,14 @@ def test_sb3_her_relabelled_rewards_match_the_ground_truth():
     tau = cfg.success_tau
     logged = _GroundTruth(MjxPushGymEnv(cfg, mask_source="analytic"))
     T = cfg.episode_length
-    model = SAC("MultiInputPolicy", logged, replay_buffer_class=HerReplayBuffer, buffer_size=4 * T,
-                learning_starts=10**6, seed=0)  # random actions only: no gradient step is needed here
+    model = SAC(
+        "MultiInputPolicy",
+        logged,
+        replay_buffer_class=HerReplayBuffer,
+        buffer_size=4 * T,
+        learning_starts=10**6,
+        seed=0,
+    )  # random actions only: no gradient step is needed here
     assert (model.replay_buffer.n_sampled_goal, model.replay_buffer.copy_info_dict) == (4, False)
     model.learn(total_timesteps=3 * T)
     s = model.replay_buffer.sample(1024)
@@ -162,8 +168,12 @@ def test_sb3_her_relabelled_rewards_match_the_ground_truth():
     relabelled, motion = 0, 0
     for j in range(len(rewards)):
         # The step this sample ends at: the object's true position equals the next achieved goal.
-        hits = [(e, t) for e, ep in enumerate(episodes) for t in range(1, T + 1)
-                if np.array_equal(ep["positions"][t].astype(np.float32), next_ag[j])]
+        hits = [
+            (e, t)
+            for e, ep in enumerate(episodes)
+            for t in range(1, T + 1)
+            if np.array_equal(ep["positions"][t].astype(np.float32), next_ag[j])
+        ]
         assert hits, f"sample {j}: next achieved goal {next_ag[j]} is no true object position"
         e, t = hits[0]
         ep = episodes[e]

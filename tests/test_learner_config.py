@@ -33,9 +33,12 @@ def test_updates_per_iteration_counts_the_whole_batch():
 
 
 def _annealed(sac=None, warmup=True, fraction=0.25, **demo):
-    return TrainConfig(AgentConfig("vpm"), sac=sac or SACConfig(bc_weight=1.0),
-                       loop=LoopConfig(total_env_steps=10_000, warmup_env_steps=1_000),
-                       demo=DemoConfig(warmup=warmup, fraction=fraction, **demo))
+    return TrainConfig(
+        AgentConfig("vpm"),
+        sac=sac or SACConfig(bc_weight=1.0),
+        loop=LoopConfig(total_env_steps=10_000, warmup_env_steps=1_000),
+        demo=DemoConfig(warmup=warmup, fraction=fraction, **demo),
+    )
 
 
 @pytest.mark.parametrize(
@@ -69,21 +72,38 @@ def _annealed(sac=None, warmup=True, fraction=0.25, **demo):
         (lambda: DemoConfig(fraction=1.5), r"demo\.fraction must be a number in \[0, 1\]"),
         (lambda: DemoConfig(noise=-0.1), r"demo\.noise must be a finite number >= 0"),
         (lambda: DemoConfig(warmup="yes"), r"demo\.warmup must be a bool"),
-        (lambda: TrainConfig(AgentConfig("vpm"), sac=SACConfig(bc_weight=1.0)),
-         r"sac\.bc_weight must be 0 unless demonstrations are collected"),
+        (
+            lambda: TrainConfig(AgentConfig("vpm"), sac=SACConfig(bc_weight=1.0)),
+            r"sac\.bc_weight must be 0 unless demonstrations are collected",
+        ),
         (lambda: SACConfig(actor_loss="dagger"), r"sac\.actor_loss must be one of \('sac', 'bc'\)"),
         (lambda: SACConfig(actor_loss="bc"), r"sac\.bc_weight must be > 0 with sac\.actor_loss 'bc'"),
         (lambda: SACConfig(actor_loss="bc", bc_weight=1.0), r"sac\.q_filter must be False with sac\.actor_loss 'bc'"),
         (lambda: DemoConfig(anneal_start=100), r"demo\.anneal_start and demo\.anneal_end must be given together"),
-        (lambda: DemoConfig(anneal_start=500, anneal_end=500), r"demo\.anneal_end must be greater than demo\.anneal_start \(500\)"),
+        (
+            lambda: DemoConfig(anneal_start=500, anneal_end=500),
+            r"demo\.anneal_end must be greater than demo\.anneal_start \(500\)",
+        ),
         (lambda: DemoConfig(anneal_start=-1, anneal_end=5), r"demo\.anneal_start must be an int >= 0"),
         (lambda: DemoConfig(anneal_start=0, anneal_end=2.5), r"demo\.anneal_end must be an int >= 0"),
-        (lambda: _annealed(anneal_start=100, anneal_end=5_000), r"demo\.anneal_start must be at or after the warm-up \(loop\.warmup_env_steps = 1000\)"),
-        (lambda: _annealed(anneal_start=2_000, anneal_end=20_000), r"demo\.anneal_end must be at most loop\.total_env_steps \(10000\)"),
-        (lambda: _annealed(anneal_start=2_000, anneal_end=5_000, warmup=False, fraction=0.0, sac=SACConfig()),
-         r"demo\.anneal_start must be None unless demonstrations are collected"),
-        (lambda: _annealed(anneal_start=2_000, anneal_end=5_000, sac=SACConfig(actor_loss="bc", bc_weight=1.0, q_filter=False)),
-         r"demo\.anneal_start must be None with sac\.actor_loss 'bc'"),
+        (
+            lambda: _annealed(anneal_start=100, anneal_end=5_000),
+            r"demo\.anneal_start must be at or after the warm-up \(loop\.warmup_env_steps = 1000\)",
+        ),
+        (
+            lambda: _annealed(anneal_start=2_000, anneal_end=20_000),
+            r"demo\.anneal_end must be at most loop\.total_env_steps \(10000\)",
+        ),
+        (
+            lambda: _annealed(anneal_start=2_000, anneal_end=5_000, warmup=False, fraction=0.0, sac=SACConfig()),
+            r"demo\.anneal_start must be None unless demonstrations are collected",
+        ),
+        (
+            lambda: _annealed(
+                anneal_start=2_000, anneal_end=5_000, sac=SACConfig(actor_loss="bc", bc_weight=1.0, q_filter=False)
+            ),
+            r"demo\.anneal_start must be None with sac\.actor_loss 'bc'",
+        ),
         (lambda: LoopConfig(eval_setting="custom"), r"loop\.eval_setting must be one of \('standard', 'difficult'\)"),
         (lambda: LoopConfig(eval_seed=1.5), r"loop\.eval_seed must be an int"),
         (

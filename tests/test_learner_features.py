@@ -38,10 +38,16 @@ def test_running_stats_merge_batches_exactly():
 
 
 def _episodes(rng, n=3, priv_dim=0):
-    ep = {"z_obj": rng.normal(size=(n, T + 1, 6)), "ee_xy": rng.normal(size=(n, T + 1, 2)),
-          "obj_xy": rng.normal(size=(n, T + 1, 2)), "z_goal": rng.normal(size=(n, 6)),
-          "goal_xy": rng.normal(size=(n, 2)), "action": rng.uniform(-1, 1, (n, T, 3)),
-          "valid": np.ones(n, bool), "demo": np.array([True] + [False] * (n - 1))}
+    ep = {
+        "z_obj": rng.normal(size=(n, T + 1, 6)),
+        "ee_xy": rng.normal(size=(n, T + 1, 2)),
+        "obj_xy": rng.normal(size=(n, T + 1, 2)),
+        "z_goal": rng.normal(size=(n, 6)),
+        "goal_xy": rng.normal(size=(n, 2)),
+        "action": rng.uniform(-1, 1, (n, T, 3)),
+        "valid": np.ones(n, bool),
+        "demo": np.array([True] + [False] * (n - 1)),
+    }
     if priv_dim:
         ep["priv"] = rng.normal(size=(n, T + 1, priv_dim))
     return {k: jnp.asarray(v, jnp.float32 if v.dtype != bool else bool) for k, v in ep.items()}
@@ -69,8 +75,12 @@ def test_normalised_networks_equal_the_plain_ones_on_standardised_inputs(kind):
     idx = jnp.array([[0, 3]] * 3, jnp.int32)
     noise = jnp.zeros((3, 2, 3))
     a_norm, _ = normed.policy(actor, ep, idx, noise)
-    manual = {**ep, "ee_xy": standard(ep["ee_xy"], "ee_xy"), "z_obj": standard(ep["z_obj"], "z"),
-              "z_goal": standard(ep["z_goal"], "z")}
+    manual = {
+        **ep,
+        "ee_xy": standard(ep["ee_xy"], "ee_xy"),
+        "z_obj": standard(ep["z_obj"], "z"),
+        "z_goal": standard(ep["z_goal"], "z"),
+    }
     a_plain, _ = plain.policy({"params": actor["params"]}, manual, idx, noise)
     np.testing.assert_allclose(a_norm, a_plain, atol=1e-6)
     assert not np.allclose(a_norm, plain.policy({"params": actor["params"]}, ep, idx, noise)[0], atol=1e-3)
@@ -79,8 +89,9 @@ def test_normalised_networks_equal_the_plain_ones_on_standardised_inputs(kind):
 def test_privileged_critic_reads_ground_truth_and_goal_not_latents():
     rng = np.random.default_rng(2)
     ep = _episodes(rng, priv_dim=5)
-    nets = make_networks(AgentConfig("egru", critic_obs="privileged", critic_layer_norm=True,
-                                     critic_hidden=(32, 32)), priv_dim=5)
+    nets = make_networks(
+        AgentConfig("egru", critic_obs="privileged", critic_layer_norm=True, critic_hidden=(32, 32)), priv_dim=5
+    )
     _, critic = nets.init(jax.random.PRNGKey(0), T)
     assert "features" not in critic["params"]  # an MLP over the state: no recurrent extractor
     assert critic["params"]["mlp"]["LayerNorm_0"]["scale"].shape == (2, 32)
@@ -111,8 +122,11 @@ class LinearNets:
 
 
 def test_behaviour_cloning_is_q_filtered():
-    demo = {"t": jnp.zeros(2, jnp.int32), "action": jnp.array([[1.0, 0.0], [0.0, 0.0]]),
-            "target": jnp.array([[1.0, 0.0], [1.0, 0.0]])}  # expert right on sample 0, wrong on sample 1
+    demo = {
+        "t": jnp.zeros(2, jnp.int32),
+        "action": jnp.array([[1.0, 0.0], [0.0, 0.0]]),
+        "target": jnp.array([[1.0, 0.0], [1.0, 0.0]]),
+    }  # expert right on sample 0, wrong on sample 1
     batch = {"t": jnp.zeros(2, jnp.int32), "target": demo["target"]}
     params = {"a": jnp.array([0.5, 0.0])}
     loss_fn = make_actor_loss(LinearNets(), bc_weight=2.0, q_filter=True)
@@ -131,8 +145,12 @@ def test_target_clip_bounds_the_td_target():
         def q(self, params, episode, idx, action):
             return jnp.full((2,) + idx.shape, 100.0)
 
-    batch = {"t": jnp.zeros(2, jnp.int32), "reward": jnp.array([-1.0, 0.0]), "action": jnp.zeros((2, 2)),
-             "target": jnp.zeros((2, 2))}
+    batch = {
+        "t": jnp.zeros(2, jnp.int32),
+        "reward": jnp.array([-1.0, 0.0]),
+        "action": jnp.zeros((2, 2)),
+        "target": jnp.zeros((2, 2)),
+    }
     params = {"a": jnp.zeros(2)}
     _, aux = make_critic_loss(Big(), 0.9, target_clip=True)(None, None, params, 0.0, batch, jax.random.PRNGKey(0))
     np.testing.assert_allclose(aux["target_q"], 0.0)  # 0.9 * 100 - 1 clipped to the return's maximum, 0
@@ -159,14 +177,26 @@ TAU = 0.025
 
 
 def _toy_cfg(**over):
-    loop = dict(num_envs=8, episode_len=10, total_env_steps=1280, warmup_env_steps=160, utd=1.0,
-                eval_every_env_steps=640, eval_episodes=100, seed=0)
+    loop = dict(
+        num_envs=8,
+        episode_len=10,
+        total_env_steps=1280,
+        warmup_env_steps=160,
+        utd=1.0,
+        eval_every_env_steps=640,
+        eval_episodes=100,
+        seed=0,
+    )
     return TrainConfig(
         agent=AgentConfig("vpm", obs_norm=True, critic_obs="privileged", critic_layer_norm=True),
         sac=SACConfig(batch_size=128, init_alpha=0.05, target_clip=True, bc_weight=1.0, bc_batch_size=64),
-        replay=ReplayConfig(capacity_transitions=20_000, success_tau=TAU, curriculum_tau=0.05,
-                            curriculum_env_steps=400),
-        loop=LoopConfig(**loop), demo=DemoConfig(warmup=True, fraction=0.25, noise=0.1), **over)
+        replay=ReplayConfig(
+            capacity_transitions=20_000, success_tau=TAU, curriculum_tau=0.05, curriculum_env_steps=400
+        ),
+        loop=LoopConfig(**loop),
+        demo=DemoConfig(warmup=True, fraction=0.25, noise=0.1),
+        **over,
+    )
 
 
 def test_expert_share_of_each_batch():
@@ -210,7 +240,9 @@ def test_in_run_evaluations_of_every_agent_share_the_protocol_episodes():
     for agent in ("vpm", "egru"):
         cfg = presets.make(agent, "cpu", seed={"vpm": 0, "egru": 7}[agent])
         loop = cfg.train.loop
-        chunks[agent] = make_push_adapter(cfg.env, enc.load(None)).eval_episodes(loop.eval_setting, loop.eval_seed, 1, 32)
+        chunks[agent] = make_push_adapter(cfg.env, enc.load(None)).eval_episodes(
+            loop.eval_setting, loop.eval_seed, 1, 32
+        )
     a, b = chunks["vpm"], chunks["egru"]
     assert a["index"].tolist() == list(range(32, 64, 2)) + list(range(33, 64, 2))  # chunk 1 = episodes 32..63
     jax.tree.map(np.testing.assert_array_equal, (a["keys"], a["params"]), (b["keys"], b["params"]))
@@ -221,8 +253,9 @@ def test_in_run_evaluations_of_every_agent_share_the_protocol_episodes():
 
 
 def test_annealed_teacher_leaves_the_last_batches_to_the_agent():
-    cfg = dataclasses.replace(_toy_cfg(), demo=DemoConfig(warmup=True, fraction=0.5, noise=0.1, anneal_start=320,
-                                                           anneal_end=960))
+    cfg = dataclasses.replace(
+        _toy_cfg(), demo=DemoConfig(warmup=True, fraction=0.5, noise=0.1, anneal_start=320, anneal_end=960)
+    )
     runner = Runner(make_train(cfg, make_toy(success_tau=TAU)))
     assert [int(runner.expert_envs(s).sum()) for s in (160, 320, 640, 800, 960, 1200)] == [4, 4, 2, 1, 0, 0]
 

@@ -54,8 +54,10 @@ def learned(request):
     state, history = run_train(jax.random.PRNGKey(0), cfg, adapter, runner=runner)
     wall = time.perf_counter() - t0
     evaluate = runner.evaluate  # the episodes of `key` (the toy task has no shared evaluation episodes)
-    print(f"\n{kind}: final eval {history[-1]['eval/success_rate']:.2f}, best {float(state.best_eval_success):.2f}, "
-          f"{wall:.1f} s")
+    print(
+        f"\n{kind}: final eval {history[-1]['eval/success_rate']:.2f}, best {float(state.best_eval_success):.2f}, "
+        f"{wall:.1f} s"
+    )
     return cfg, trainer, state, history, evaluate, initial_actor
 
 
@@ -180,8 +182,14 @@ def test_selection_keeps_the_best_reward_and_gives_ties_to_the_newer_params():
 
     def evaluated(ts, steps, reward, success):
         ts = ts.replace(env_steps=jnp.asarray(steps, jnp.int32))
-        ts, m = select(ts, {"mean_reward": jnp.float32(reward), "success_rate": jnp.float32(success),
-                            "invalid_rate": jnp.float32(0.0)})
+        ts, m = select(
+            ts,
+            {
+                "mean_reward": jnp.float32(reward),
+                "success_rate": jnp.float32(success),
+                "invalid_rate": jnp.float32(0.0),
+            },
+        )
         return ts, bool(m["eval/improved"])
 
     ts, improved = evaluated(ts, 100, -10.0, 0.0)

@@ -1,6 +1,5 @@
 """Analytic masks against MuJoCo's own renderer (docs/task.md section 2): mean IoU >= 0.95 over random poses."""
 
-
 import jax
 import jax.numpy as jnp
 import mujoco
@@ -49,8 +48,15 @@ def test_masks_match_renderer(shape):
             yaw = rng.uniform(-np.pi, np.pi)
             m.geom_size[ids.object_geom] = size
             d.qpos[:7] = scene.HOME_QPOS
-            d.qpos[ids.object_qpos : ids.object_qpos + 7] = [xy[0], xy[1], scene.TABLE_TOP + hh,
-                                                               np.cos(yaw / 2), 0, 0, np.sin(yaw / 2)]
+            d.qpos[ids.object_qpos : ids.object_qpos + 7] = [
+                xy[0],
+                xy[1],
+                scene.TABLE_TOP + hh,
+                np.cos(yaw / 2),
+                0,
+                0,
+                np.sin(yaw / 2),
+            ]
             mujoco.mj_forward(m, d)
             r.update_scene(d, camera="under_table")
             refs.append(colour_filter(r.render()))
@@ -79,7 +85,9 @@ def test_pixel_convention():
     size = f(0.02, 0.02, 0.02)
     centre = np.argwhere(np.asarray(masks.object_mask("box", size, f(cx, cy), 0.0, scene.TABLE_TOP + 0.02))).mean(0)
     np.testing.assert_allclose(centre, [31.5, 31.5], atol=0.01)
-    right = np.argwhere(np.asarray(masks.object_mask("box", size, f(cx + 0.1, cy), 0.0, scene.TABLE_TOP + 0.02))).mean(0)
+    right = np.argwhere(np.asarray(masks.object_mask("box", size, f(cx + 0.1, cy), 0.0, scene.TABLE_TOP + 0.02))).mean(
+        0
+    )
     down = np.argwhere(np.asarray(masks.object_mask("box", size, f(cx, cy + 0.1), 0.0, scene.TABLE_TOP + 0.02))).mean(0)
     assert right[1] > centre[1] + 5 and abs(right[0] - centre[0]) < 0.01
     assert down[0] > centre[0] + 5 and abs(down[1] - centre[1]) < 0.01

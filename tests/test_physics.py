@@ -17,8 +17,11 @@ def rest_params(geom_type):
     out = []
     for mass, fr, side, h in combos:
         if geom_type == "cylinder":
-            out.append(make_params("cylinder", radius=side / 2 if side > 0.08 else 0.04, height=min(h, 0.055),
-                                   mass=mass, friction=fr))
+            out.append(
+                make_params(
+                    "cylinder", radius=side / 2 if side > 0.08 else 0.04, height=min(h, 0.055), mass=mass, friction=fr
+                )
+            )
         else:
             out.append(make_params("box", sides=(side, side), height=min(h, side), mass=mass, friction=fr))
     return out
@@ -121,9 +124,13 @@ def test_pushing_keeps_physics_valid(box_sim, cyl_sim):
     for sim in (box_sim, cyl_sim):
         kw = dict(start=(0.07, 0.0, 0.3), friction=0.2)
         if sim.geom_type == "box":
-            params = [make_params("box", sides=(0.05, 0.05), height=0.046, mass=m, **kw) for m in (0.0005, 0.01, 0.5, 2.5)]
+            params = [
+                make_params("box", sides=(0.05, 0.05), height=0.046, mass=m, **kw) for m in (0.0005, 0.01, 0.5, 2.5)
+            ]
         else:
-            params = [make_params("cylinder", radius=0.04, height=0.046, mass=m, **kw) for m in (0.0005, 0.01, 0.5, 2.5)]
+            params = [
+                make_params("cylinder", radius=0.04, height=0.046, mass=m, **kw) for m in (0.0005, 0.01, 0.5, 2.5)
+            ]
         state = sim.start(params)
         x0 = np.asarray(state.info["object_xy"])[:, 0]
         rest_z = np.asarray(state.info["object_z"])
@@ -157,7 +164,9 @@ def test_invalid_states_are_detected_counted_and_reset(box_sim):
     for leaf in jax.tree.leaves(state.obs) + [state.pipeline_state.qpos, state.pipeline_state.qvel, state.reward]:
         assert np.all(np.isfinite(np.asarray(leaf, np.float32)))
     # The flagged environments restart from their episode's initial state.
-    np.testing.assert_allclose(np.asarray(state.info["object_xy"])[:3], np.asarray(params[0].start[:2])[None].repeat(3, 0), atol=1e-6)
+    np.testing.assert_allclose(
+        np.asarray(state.info["object_xy"])[:3], np.asarray(params[0].start[:2])[None].repeat(3, 0), atol=1e-6
+    )
     # The flag is sticky within the episode; the next step of a valid env stays valid.
     state = box_sim.step(state, jnp.tile(jnp.array([0.0, 0.0, -1.0]), (B, 1)))
     np.testing.assert_array_equal(np.asarray(state.info["episode_invalid"]), [True, True, True, False])

@@ -76,7 +76,9 @@ def test_run_writes_logs_checkpoints_and_policies(full_run):
 
 def test_resume_refuses_a_different_configuration(full_run, toy):
     cfg, d, _, _ = full_run
-    other = dataclasses.replace(cfg, train=dataclasses.replace(cfg.train, sac=dataclasses.replace(cfg.train.sac, lr=3e-4)))
+    other = dataclasses.replace(
+        cfg, train=dataclasses.replace(cfg.train, sac=dataclasses.replace(cfg.train.sac, lr=3e-4))
+    )
     with pytest.raises(ValueError, match=r"different configuration: train\.sac\.lr"):
         run_mod.run(other, d, adapter=toy, resume=True)
     # The checkpoint itself also refuses a state of another shape or configuration.
@@ -186,8 +188,13 @@ def test_a_second_signal_interrupts_at_once():
 def test_kill_9_while_a_checkpoint_is_written_resumes_to_the_same_result(full_run, tmp_path, toy, encoder_file):
     cfg, _, _, full_state = full_run
     d = tmp_path / "killed"
-    r = subprocess.run([sys.executable, "-m", "tests.crash_run", str(d), encoder_file],
-                       cwd=Path(__file__).resolve().parents[1], capture_output=True, text=True, timeout=600)
+    r = subprocess.run(
+        [sys.executable, "-m", "tests.crash_run", str(d), encoder_file],
+        cwd=Path(__file__).resolve().parents[1],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert r.returncode == -signal.SIGKILL, r.stdout[-2000:] + r.stderr[-3000:]
     ckpt = d / "checkpoints"
     assert list(ckpt.glob("120.orbax-checkpoint-tmp*"))  # the half-committed checkpoint is still there
@@ -270,12 +277,24 @@ def test_success_tau_sets_the_environment_and_the_relabelling_radius():
 def test_set_overrides_any_field_by_its_config_path(capsys):
     from train.cli import Train
 
-    cfg = Train(agent="vpm", preset="cpu", set=("train.sac.bc_weight=0", "env.substeps=[10,600]",
-                                                "env.controller.gain=1.0", 'train.agent.critic_obs="actor"')).config()
+    cfg = Train(
+        agent="vpm",
+        preset="cpu",
+        set=(
+            "train.sac.bc_weight=0",
+            "env.substeps=[10,600]",
+            "env.controller.gain=1.0",
+            'train.agent.critic_obs="actor"',
+        ),
+    ).config()
     assert cfg.train.sac.bc_weight == 0 and cfg.env.substeps == (10, 600) and cfg.env.controller.gain == 1.0
     assert cfg.train.agent.critic_obs == "actor" and cfg.train.agent.obs_norm  # the rest stays the preset's
-    for bad, says in (("train.sac.bcweight=0", "no field 'bcweight'"), ("trian.sac.lr=1", "no section 'trian'"),
-                      ("train.sac.bc_weight=-1", "bc_weight must be"), ("train.sac.bc_weight", "PATH=VALUE")):
+    for bad, says in (
+        ("train.sac.bcweight=0", "no field 'bcweight'"),
+        ("trian.sac.lr=1", "no section 'trian'"),
+        ("train.sac.bc_weight=-1", "bc_weight must be"),
+        ("train.sac.bc_weight", "PATH=VALUE"),
+    ):
         assert cli_main(["train", "--set", bad, "--run-dir", "/nonexistent/never"]) == 2
         assert says in capsys.readouterr().err, bad
 
@@ -289,9 +308,17 @@ def test_progress_lines_report_success_reward_and_final_distance():
     from train.progress import TrainProgress
 
     out = io.StringIO()
-    m = {"env_steps": 500, "env_steps_per_s": 10.0, "updates_per_s": 0.0, "train/success_rate": 0.1,
-         "train/mean_reward": -45.0, "train/final_distance": 0.0875, "eval/success_rate": 0.25,
-         "eval/mean_reward": -40.0, "eval/final_distance": 0.123}
+    m = {
+        "env_steps": 500,
+        "env_steps_per_s": 10.0,
+        "updates_per_s": 0.0,
+        "train/success_rate": 0.1,
+        "train/mean_reward": -45.0,
+        "train/final_distance": 0.0875,
+        "eval/success_rate": 0.25,
+        "eval/mean_reward": -40.0,
+        "eval/final_distance": 0.123,
+    }
     with TrainProgress(Console(file=out, width=200), LoopConfig(), enabled=False) as bar:
         bar.update(m)
     line = out.getvalue()

@@ -40,8 +40,10 @@ def test_dynamics_parameters():
 def test_only_rod_object_table_collide(shape):
     m = scene.build_model(shape)
     ids = scene.scene_ids(m)
-    allowed = {frozenset(p) for p in [(ids.rod_geom, ids.object_geom), (ids.object_geom, ids.table_geom),
-                                      (ids.rod_geom, ids.table_geom)]}
+    allowed = {
+        frozenset(p)
+        for p in [(ids.rod_geom, ids.object_geom), (ids.object_geom, ids.table_geom), (ids.rod_geom, ids.table_geom)]
+    }
     found = set()
     for a in range(m.ngeom):
         for b in range(a + 1, m.ngeom):

@@ -104,8 +104,15 @@ def test_the_actor_learns_the_experts_pushes_on_the_pushing_scene(encoder_file):
     T = 10  # the approach: the rod travels round the object to the push point
     # One cylinder (size, mass, friction fixed; start and goal drawn as in the task): a mapping from
     # latents to pushes that a few dozen episodes can teach.
-    one = dataclasses.replace(base.env.objects, shape="cylinder", radius=(0.05, 0.05), min_height=0.05,
-                              max_height_cylinder=0.05, mass=(0.2, 0.2), friction=(0.5, 0.5))
+    one = dataclasses.replace(
+        base.env.objects,
+        shape="cylinder",
+        radius=(0.05, 0.05),
+        min_height=0.05,
+        max_height_cylinder=0.05,
+        mass=(0.2, 0.2),
+        friction=(0.5, 0.5),
+    )
     env = dataclasses.replace(base.env, episode_length=T, objects=one)
     t = dataclasses.replace(
         base.train,
@@ -114,9 +121,17 @@ def test_the_actor_learns_the_experts_pushes_on_the_pushing_scene(encoder_file):
         agent=dataclasses.replace(base.train.agent, critic_hidden=(128, 128)),
         sac=dataclasses.replace(base.train.sac, batch_size=128, bc_batch_size=128, bc_weight=4.0, q_filter=False),
         replay=dataclasses.replace(base.train.replay, capacity_transitions=20_000),
-        loop=LoopConfig(num_envs=16, episode_len=T, total_env_steps=16 * T * 10, warmup_env_steps=16 * T, utd=0.5,
-                        eval_every_env_steps=16 * T * 10, eval_episodes=16),
-        demo=dataclasses.replace(base.train.demo, label_all=True, fraction=1.0))
+        loop=LoopConfig(
+            num_envs=16,
+            episode_len=T,
+            total_env_steps=16 * T * 10,
+            warmup_env_steps=16 * T,
+            utd=0.5,
+            eval_every_env_steps=16 * T * 10,
+            eval_episodes=16,
+        ),
+        demo=dataclasses.replace(base.train.demo, label_all=True, fraction=1.0),
+    )
     cfg = dataclasses.replace(base, env=env, train=t, encoder=None)
     adapter = make_push_adapter(cfg.env, enc.load(None), expert_config=cfg.expert)
     runner = Runner(make_train(cfg.train, adapter))
@@ -144,8 +159,9 @@ def test_the_actor_learns_the_experts_pushes_on_the_pushing_scene(encoder_file):
     assert bc[-1] < 0.6 * bc[0], bc
 
     # Fresh episodes driven by the expert (held out): how far is each actor from its labels?
-    episodes, _ = runner.rollout(state.sac.actor_params, jax.random.PRNGKey(99), jnp.asarray(False),
-                                 jnp.asarray(True), jnp.ones(16, bool))
+    episodes, _ = runner.rollout(
+        state.sac.actor_params, jax.random.PRNGKey(99), jnp.asarray(False), jnp.asarray(True), jnp.ones(16, bool)
+    )
     nets = runner.trainer.networks
     idx = jnp.tile(jnp.arange(T)[None], (16, 1))
 
@@ -163,8 +179,10 @@ def test_the_actor_learns_the_experts_pushes_on_the_pushing_scene(encoder_file):
         return float(jnp.mean(jnp.sum(a * e, -1) / (jnp.linalg.norm(a, axis=-1) * jnp.linalg.norm(e, axis=-1) + 1e-6)))
 
     cos_before, cos_after = direction(untrained), direction(state.sac.actor_params)
-    print(f"imitation error on held-out expert episodes: untrained {before:.3f}, best constant {constant:.3f}, "
-          f"trained {after:.3f}; direction cosine {cos_before:.2f} -> {cos_after:.2f}; training bc loss {bc}")
+    print(
+        f"imitation error on held-out expert episodes: untrained {before:.3f}, best constant {constant:.3f}, "
+        f"trained {after:.3f}; direction cosine {cos_before:.2f} -> {cos_after:.2f}; training bc loss {bc}"
+    )
     assert after < 0.6 * constant < 0.6 * before
     assert cos_after > 0.7 and cos_after > cos_before + 0.5
 
@@ -173,7 +191,12 @@ def test_the_actor_learns_the_experts_pushes_on_the_pushing_scene(encoder_file):
 
     ev = runner.evaluate(untrained)
     loop = cfg.train.loop
-    want, _ = episode_objects(EvalSpec(setting=loop.eval_setting, shape="cylinder", seed=loop.eval_seed),
-                              cfg.env.objects, "cylinder", np.arange(16))
-    np.testing.assert_allclose(ev["episode_start_distance"],
-                               np.linalg.norm(want.start[:, :2] - want.goal[:, :2], axis=-1), rtol=1e-5)
+    want, _ = episode_objects(
+        EvalSpec(setting=loop.eval_setting, shape="cylinder", seed=loop.eval_seed),
+        cfg.env.objects,
+        "cylinder",
+        np.arange(16),
+    )
+    np.testing.assert_allclose(
+        ev["episode_start_distance"], np.linalg.norm(want.start[:, :2] - want.goal[:, :2], axis=-1), rtol=1e-5
+    )

@@ -43,10 +43,12 @@ def test_importing_the_package_leaves_the_device_count_to_the_program():
     """`import mjx_push` keeps jax.device_count() (a library must not change it); use_cpu_devices() before
     jax starts splits the CPU into the devices asked for, so no import may start the backend (a module-level
     jnp array would, and the command line's split would silently not happen)."""
-    code = ("import sys, mjx_push, jax, jax._src.xla_bridge as xb, export.cli, mjx_push.brax_env\n"
-            "assert not xb.backends_are_initialized(), 'an import started the backend: too late to split'\n"
-            "if sys.argv[1] == 'ask': assert mjx_push.xla.use_cpu_devices(3) == 3\n"
-            "print(jax.device_count(), '--xla_cpu_use_fusion_emitters' in __import__('os').environ['XLA_FLAGS'])")
+    code = (
+        "import sys, mjx_push, jax, jax._src.xla_bridge as xb, export.cli, mjx_push.brax_env\n"
+        "assert not xb.backends_are_initialized(), 'an import started the backend: too late to split'\n"
+        "if sys.argv[1] == 'ask': assert mjx_push.xla.use_cpu_devices(3) == 3\n"
+        "print(jax.device_count(), '--xla_cpu_use_fusion_emitters' in __import__('os').environ['XLA_FLAGS'])"
+    )
     env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", xla.DEVICES_ENV)}
     env["JAX_PLATFORMS"] = "cpu"
     for arg, want in (("import", "1"), ("ask", "3")):

@@ -61,8 +61,9 @@ def make_toy(
         k_obj, k_goal, k_state = jax.random.split(key, 3)
         obj = jax.random.uniform(k_obj, (num_envs, 2), minval=-bound, maxval=bound)
         goal = jax.random.uniform(k_goal, (num_envs, 2), minval=-bound, maxval=bound)
-        state = ToyState(obj, jax.random.split(k_state, num_envs), jnp.zeros((num_envs, 2)),
-                         jnp.zeros((num_envs,), jnp.int32))
+        state = ToyState(
+            obj, jax.random.split(k_state, num_envs), jnp.zeros((num_envs, 2)), jnp.zeros((num_envs,), jnp.int32)
+        )
         return state, observe(obj), {"z_goal": goal @ M, "goal_xy": goal}
 
     def step(state, action):
@@ -86,5 +87,4 @@ def make_toy(
     scheduler = None
     if substep_chunk:
         scheduler = SubstepScheduler(begin, advance, lambda s: s.left == 0, finish, substep_chunk)
-    return EnvAdapter(reset=reset, step=step, success_tau=success_tau, scheduler=scheduler, priv_dim=2,
-                      expert=expert)
+    return EnvAdapter(reset=reset, step=step, success_tau=success_tau, scheduler=scheduler, priv_dim=2, expert=expert)

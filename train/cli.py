@@ -41,10 +41,18 @@ class Demo:
 
         cfg = EnvConfig(objects=objects.ObjectConfig(shape=self.shape))
         console = Console()
-        console.print(f"[bold]mjx-push demo[/]: {self.num_envs} environments, {self.steps} random steps "
-                      "(the first step includes JIT compilation)")
-        with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
-                      TextColumn("{task.fields[sps]}"), TimeElapsedColumn(), console=console) as bar:
+        console.print(
+            f"[bold]mjx-push demo[/]: {self.num_envs} environments, {self.steps} random steps "
+            "(the first step includes JIT compilation)"
+        )
+        with Progress(
+            TextColumn("{task.description}"),
+            BarColumn(),
+            TextColumn("{task.completed}/{task.total}"),
+            TextColumn("{task.fields[sps]}"),
+            TimeElapsedColumn(),
+            console=console,
+        ) as bar:
             task = bar.add_task("stepping", total=self.steps, sps="compiling...")
 
             def progress(i, total, sps):
@@ -84,22 +92,33 @@ class TrainEncoder:
         from mjx_push import encoder as enc
         from train.encoder_training import EncoderTrainConfig, train_encoder
 
-        cfg = EncoderTrainConfig(steps=self.steps, batch_size=self.batch_size, lr=self.lr,
-                                 kl_weight=self.kl_weight, yaw_weight=self.yaw_weight, eval_masks=self.eval_masks,
-                                 eval_every=self.eval_every, seed=self.seed)
+        cfg = EncoderTrainConfig(
+            steps=self.steps,
+            batch_size=self.batch_size,
+            lr=self.lr,
+            kl_weight=self.kl_weight,
+            yaw_weight=self.yaw_weight,
+            eval_masks=self.eval_masks,
+            eval_every=self.eval_every,
+            seed=self.seed,
+        )
         console = Console()
         console.print(f"[bold]mjx-push train-encoder[/]: {cfg.steps} steps of {cfg.batch_size} fresh masks")
 
         def progress(step, row):
-            console.print(f"  step {step:>6}  loss {row['loss']:8.2f}  held-out IoU {row['heldout_iou']:.4f}"
-                          f"  {row['seconds']:7.0f} s")
+            console.print(
+                f"  step {step:>6}  loss {row['loss']:8.2f}  held-out IoU {row['heldout_iou']:.4f}"
+                f"  {row['seconds']:7.0f} s"
+            )
 
         params, report = train_encoder(cfg, progress)
         record = {
-            "command": (f"mjx-push train-encoder --steps {cfg.steps} --batch-size {cfg.batch_size} --lr {cfg.lr} "
-                        f"--kl-weight {cfg.kl_weight} --yaw-weight {cfg.yaw_weight} --eval-masks {cfg.eval_masks} "
-                        f"--seed {cfg.seed} "
-                        f"--out {self.out}"),
+            "command": (
+                f"mjx-push train-encoder --steps {cfg.steps} --batch-size {cfg.batch_size} --lr {cfg.lr} "
+                f"--kl-weight {cfg.kl_weight} --yaw-weight {cfg.yaw_weight} --eval-masks {cfg.eval_masks} "
+                f"--seed {cfg.seed} "
+                f"--out {self.out}"
+            ),
             "seed": cfg.seed,
             "created": time.strftime("%Y-%m-%d %H:%M:%S"),
             "jax": jax.__version__,
@@ -108,8 +127,10 @@ class TrainEncoder:
             **report,
         }
         enc.save(self.out, params["encoder"], record)
-        console.print(f"held-out IoU mean {report['iou_mean']:.4f} (5th percentile {report['iou_p05']:.4f}); "
-                      f"encoder written to {self.out}")
+        console.print(
+            f"held-out IoU mean {report['iou_mean']:.4f} (5th percentile {report['iou_p05']:.4f}); "
+            f"encoder written to {self.out}"
+        )
 
 
 def _preset_arg(metavar: str):
@@ -131,13 +152,15 @@ class Train:
     """vpm (the default: the cheapest to train on a CPU), stacked, ugru, egru (the paper's proposal)"""
     preset: Preset = "cpu"
     seed: int = 0
-    run_dir: Annotated[Path | None, tyro.conf.arg(
-        metavar="DIR", help_behavior_hint="(default: runs/<agent>-<preset>-s<seed>)")] = None
+    run_dir: Annotated[
+        Path | None, tyro.conf.arg(metavar="DIR", help_behavior_hint="(default: runs/<agent>-<preset>-s<seed>)")
+    ] = None
     """where the run's config, logs, checkpoints and policies go"""
     resume: Annotated[bool, tyro.conf.arg(help_behavior_hint="")] = False
     """continue the run in --run-dir from its latest checkpoint (same configuration required)"""
-    encoder: Annotated[Path | None, tyro.conf.arg(
-        metavar="PATH", help_behavior_hint="(default: the shipped pretrained encoder)")] = None
+    encoder: Annotated[
+        Path | None, tyro.conf.arg(metavar="PATH", help_behavior_hint="(default: the shipped pretrained encoder)")
+    ] = None
     """encoder weights (.msgpack, from mjx-push train-encoder)"""
     num_envs: Annotated[int | None, _preset_arg("N")] = None
     total_env_steps: Annotated[int | None, _preset_arg("N")] = None
@@ -166,10 +189,16 @@ class Train:
 
     # Options that override a field of the preset's run configuration: error messages about that field
     # name the option instead.
-    _FIELDS = {"num_envs": "loop.num_envs", "total_env_steps": "loop.total_env_steps",
-               "warmup_env_steps": "loop.warmup_env_steps", "utd": "loop.utd",
-               "eval_every_env_steps": "loop.eval_every_env_steps", "eval_episodes": "loop.eval_episodes",
-               "batch_size": "sac.batch_size", "lr": "sac.lr"}
+    _FIELDS = {
+        "num_envs": "loop.num_envs",
+        "total_env_steps": "loop.total_env_steps",
+        "warmup_env_steps": "loop.warmup_env_steps",
+        "utd": "loop.utd",
+        "eval_every_env_steps": "loop.eval_every_env_steps",
+        "eval_episodes": "loop.eval_episodes",
+        "batch_size": "sac.batch_size",
+        "lr": "sac.lr",
+    }
 
     def config(self):
         from train import presets
@@ -181,8 +210,11 @@ class Train:
                 cfg = dataclasses.replace(cfg, encoder=str(self.encoder))
             if self.success_tau is not None:  # the environment and the learner's relabelling share the radius
                 replay = dataclasses.replace(cfg.train.replay, success_tau=self.success_tau)
-                cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, success_tau=self.success_tau),
-                                          train=dataclasses.replace(cfg.train, replay=replay))
+                cfg = dataclasses.replace(
+                    cfg,
+                    env=dataclasses.replace(cfg.env, success_tau=self.success_tau),
+                    train=dataclasses.replace(cfg.train, replay=replay),
+                )
         if self.set:
             try:
                 cfg = presets.with_overrides(cfg, presets.parse_overrides(self.set))
@@ -192,9 +224,15 @@ class Train:
 
     def _flag_names(self) -> dict[str, str]:
         names = {field: "--" + name.replace("_", "-") for name, field in self._FIELDS.items()}
-        names.update({"env.success_tau": "--success-tau", "replay.success_tau": "--success-tau",
-                      "success_tau": "--success-tau", "substep_chunk": "--substep-chunk",
-                      "checkpoint_every": "--checkpoint-every"})
+        names.update(
+            {
+                "env.success_tau": "--success-tau",
+                "replay.success_tau": "--success-tau",
+                "success_tau": "--success-tau",
+                "substep_chunk": "--substep-chunk",
+                "checkpoint_every": "--checkpoint-every",
+            }
+        )
         return names
 
     def run(self) -> None:
@@ -209,8 +247,10 @@ class Train:
             raise ConfigError(f"--checkpoint-every must be >= 1, got {self.checkpoint_every}")
         if self.resume:
             if not run_dir.is_dir():
-                raise ConfigError(f"--resume: no run directory {run_dir}" + ("" if self.run_dir else
-                                 " (the default for these --agent/--preset/--seed; pass --run-dir)"))
+                raise ConfigError(
+                    f"--resume: no run directory {run_dir}"
+                    + ("" if self.run_dir else " (the default for these --agent/--preset/--seed; pass --run-dir)")
+                )
             cfg = run_mod.load_config(run_dir / "config.json")
             try:
                 run_mod.check_not_finished(run_dir, cfg)
@@ -218,33 +258,50 @@ class Train:
                 console.print(f"{done} Nothing was changed.", soft_wrap=True)
                 return
             if self._overrides():
-                raise ConfigError("--resume continues the saved configuration; drop the other settings "
-                                 f"({', '.join('--' + n.replace('_', '-') for n in self._overrides())})")
+                raise ConfigError(
+                    "--resume continues the saved configuration; drop the other settings "
+                    f"({', '.join('--' + n.replace('_', '-') for n in self._overrides())})"
+                )
         else:
             cfg = self.config()
         loop = cfg.train.loop
-        console.print(f"[bold]mjx-push train[/] {cfg.agent} ({cfg.preset}): {loop.num_envs} envs, "
-                      f"{loop.total_env_steps:,} env steps, {loop.warmup_env_steps:,} warm-up, "
-                      f"{loop.updates_per_iteration} updates per batch of {loop.env_steps_per_iteration} steps; "
-                      f"run dir {run_dir}", soft_wrap=True)
+        console.print(
+            f"[bold]mjx-push train[/] {cfg.agent} ({cfg.preset}): {loop.num_envs} envs, "
+            f"{loop.total_env_steps:,} env steps, {loop.warmup_env_steps:,} warm-up, "
+            f"{loop.updates_per_iteration} updates per batch of {loop.env_steps_per_iteration} steps; "
+            f"run dir {run_dir}",
+            soft_wrap=True,
+        )
         console.print("  the first batch includes JIT compilation (minutes on CPU)")
         try:
             with TrainProgress(console, loop, enabled=self.progress) as bar, flag_errors(self._flag_names()):
-                summary, _ = run_mod.run(cfg, run_dir, resume=self.resume, checkpoint_every=self.checkpoint_every,
-                                         on_iteration=bar.update, substep_chunk=self.substep_chunk,
-                                         stop_on_signal=True)
+                summary, _ = run_mod.run(
+                    cfg,
+                    run_dir,
+                    resume=self.resume,
+                    checkpoint_every=self.checkpoint_every,
+                    on_iteration=bar.update,
+                    substep_chunk=self.substep_chunk,
+                    stop_on_signal=True,
+                )
         except run_mod.RunFinished as done:
             console.print(f"{done} Nothing was changed.", soft_wrap=True)
             return
         if "interrupted_at_env_steps" in summary:
-            console.print(f"[yellow]interrupted[/] ({summary['signal']}) at {summary['interrupted_at_env_steps']:,} "
-                          f"env steps; checkpoint written. Continue with: mjx-push train --resume --run-dir {run_dir}",
-                          soft_wrap=True)
+            console.print(
+                f"[yellow]interrupted[/] ({summary['signal']}) at {summary['interrupted_at_env_steps']:,} "
+                f"env steps; checkpoint written. Continue with: mjx-push train --resume --run-dir {run_dir}",
+                soft_wrap=True,
+            )
             raise SystemExit(130)
-        console.print(f"best evaluation: mean reward {summary['best_eval_mean_reward']:.2f}, success "
-                      f"{summary['best_eval_success_rate']:.0%} at {summary['best_env_steps']:,} env steps")
-        console.print(f"policy: {run_dir / 'best_policy.msgpack'} (+ .json); logs: {run_dir / 'metrics.csv'}, "
-                      f"TensorBoard {run_dir / 'tb'}; checkpoints: {run_dir / 'checkpoints'}")
+        console.print(
+            f"best evaluation: mean reward {summary['best_eval_mean_reward']:.2f}, success "
+            f"{summary['best_eval_success_rate']:.0%} at {summary['best_env_steps']:,} env steps"
+        )
+        console.print(
+            f"policy: {run_dir / 'best_policy.msgpack'} (+ .json); logs: {run_dir / 'metrics.csv'}, "
+            f"TensorBoard {run_dir / 'tb'}; checkpoints: {run_dir / 'checkpoints'}"
+        )
 
     def _overrides(self) -> list[str]:
         names = (*self._FIELDS, "encoder", "success_tau")
@@ -260,8 +317,10 @@ def resolve_policy(path: Path, name: str = "POLICY"):
     path = Path(path)
     stem = path.with_suffix("") if path.suffix in (".msgpack", ".json") else path
     if not (path.exists() or stem.with_suffix(".msgpack").exists() or stem.with_suffix(".json").exists()):
-        raise ConfigError(f"{name} {path}: no such file or directory (a run directory, a saved policy "
-                         "best_policy.msgpack / .json or their stem, or an exported .npz)")
+        raise ConfigError(
+            f"{name} {path}: no such file or directory (a run directory, a saved policy "
+            "best_policy.msgpack / .json or their stem, or an exported .npz)"
+        )
     try:
         if path.is_dir():
             if (path / "best_policy.msgpack").is_file():
@@ -284,14 +343,22 @@ class Eval(EvalOptions):
     policy)"""
     batch: int = 20
     """episodes simulated in parallel (does not change the episodes)"""
-    success_tau: Annotated[float | None, tyro.conf.arg(metavar="M", help_behavior_hint=(
-        "(default: the radius the policy trained for)"))] = None
+    success_tau: Annotated[
+        float | None, tyro.conf.arg(metavar="M", help_behavior_hint=("(default: the radius the policy trained for)"))
+    ] = None
     """success radius in metres to score at (the correction counters use it too)"""
-    preset: Annotated[Preset | None, tyro.conf.arg(
-        metavar="{cpu,cpu-long,smoke,reference,paper}", help_behavior_hint="(default: cpu)")] = None
+    preset: Annotated[
+        Preset | None,
+        tyro.conf.arg(metavar="{cpu,cpu-long,smoke,reference,paper}", help_behavior_hint="(default: cpu)"),
+    ] = None
     """POLICY expert only: the preset whose action box the expert acts in (reference: the paper's)"""
-    out: Annotated[Path | None, tyro.conf.arg(metavar="PATH", help_behavior_hint="(default: eval.json beside "
-                                               "the policy; outputs/eval-expert.json for the expert)")] = None
+    out: Annotated[
+        Path | None,
+        tyro.conf.arg(
+            metavar="PATH",
+            help_behavior_hint="(default: eval.json beside the policy; outputs/eval-expert.json for the expert)",
+        ),
+    ] = None
     """JSON with the table and per-episode values"""
 
     def resolve(self, path: Path):
@@ -325,21 +392,38 @@ class Eval(EvalOptions):
         console = Console()
         name = f"expert ({self.preset or 'cpu'} action box)" if is_expert else policy.config.agent
         tau = spec.success_tau or policy.config.env.success_tau
-        console.print(f"[bold]mjx-push eval[/] {name} (JAX, MJX): {self.policy}, {spec.episodes} "
-                      f"episodes, setting {spec.setting}, shape {spec.shape}, success within {100 * tau:g} cm "
-                      "(the first batch includes JIT compilation)")
+        console.print(
+            f"[bold]mjx-push eval[/] {name} (JAX, MJX): {self.policy}, {spec.episodes} "
+            f"episodes, setting {spec.setting}, shape {spec.shape}, success within {100 * tau:g} cm "
+            "(the first batch includes JIT compilation)"
+        )
         res = evaluate(policy, spec)
         s = res["summary"]
-        console.print(metrics_table(f"{name} / {spec.setting} / {spec.shape} ({spec.episodes} "
-                                    f"episodes, MJX, success within {100 * tau:g} cm)", s))
+        console.print(
+            metrics_table(
+                f"{name} / {spec.setting} / {spec.shape} ({spec.episodes} "
+                f"episodes, MJX, success within {100 * tau:g} cm)",
+                s,
+            )
+        )
         if res["invalid_episodes"]:
-            console.print(f"[yellow]{res['invalid_episodes']} episodes hit an invalid simulation state "
-                          f"(counted as failures with reward -{policy.config.env.episode_length})")
-        out = self.out or (Path("outputs/eval-expert.json") if is_expert else
-                           (self.policy if self.policy.is_dir() else self.policy.parent) / "eval.json")
-        record = {"policy": str(self.policy), "agent": name, "spec": dataclasses.asdict(spec),
-                  "summary": s, "invalid_episodes": res["invalid_episodes"],
-                  "per_episode": {k: np.asarray(v).tolist() for k, v in res["per_episode"].items()}}
+            console.print(
+                f"[yellow]{res['invalid_episodes']} episodes hit an invalid simulation state "
+                f"(counted as failures with reward -{policy.config.env.episode_length})"
+            )
+        out = self.out or (
+            Path("outputs/eval-expert.json")
+            if is_expert
+            else (self.policy if self.policy.is_dir() else self.policy.parent) / "eval.json"
+        )
+        record = {
+            "policy": str(self.policy),
+            "agent": name,
+            "spec": dataclasses.asdict(spec),
+            "summary": s,
+            "invalid_episodes": res["invalid_episodes"],
+            "per_episode": {k: np.asarray(v).tolist() for k, v in res["per_episode"].items()},
+        }
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(json.dumps(record, indent=2) + "\n")
         console.print(f"written {out}")
@@ -409,13 +493,24 @@ class Reproduce:
                 return
             agent, sep, seed = self.job.partition(":")
             if not sep or agent not in rep.AGENTS or not seed.isdigit():
-                raise ConfigError(f"--job must be AGENT:SEED (AGENT one of {rep.AGENTS}, SEED an int >= 0) or "
-                                 f"'expert', got {self.job!r}")
-            rep.agent_job(self.budget, agent, int(seed), out, episodes, rep.PAPER_SHAPES, "difficult",
-                          log=console.print)
+                raise ConfigError(
+                    f"--job must be AGENT:SEED (AGENT one of {rep.AGENTS}, SEED an int >= 0) or "
+                    f"'expert', got {self.job!r}"
+                )
+            rep.agent_job(
+                self.budget, agent, int(seed), out, episodes, rep.PAPER_SHAPES, "difficult", log=console.print
+            )
             return
-        path = rep.reproduce(self.budget, self.seeds, out, self.episodes, tuple(self.agents), log=console.print,
-                             jobs=self.jobs, report_only=self.report_only)
+        path = rep.reproduce(
+            self.budget,
+            self.seeds,
+            out,
+            self.episodes,
+            tuple(self.agents),
+            log=console.print,
+            jobs=self.jobs,
+            report_only=self.report_only,
+        )
         console.print(f"report: {path}")
         console.print((path.parent / "report.md").read_text(), markup=False, soft_wrap=True)  # verbatim Markdown
 

@@ -42,13 +42,21 @@ def _positive_int(name: str, value) -> None:
 
 
 def _widths(name: str, value: tuple) -> None:
-    _check(len(value) > 0 and all(isinstance(h, int) and not isinstance(h, bool) and h > 0 for h in value),
-           name, "a non-empty tuple of positive ints", value)
+    _check(
+        len(value) > 0 and all(isinstance(h, int) and not isinstance(h, bool) and h > 0 for h in value),
+        name,
+        "a non-empty tuple of positive ints",
+        value,
+    )
 
 
 def _fraction(name: str, value) -> None:
-    _check(isinstance(value, (int, float)) and not isinstance(value, bool) and 0 <= value <= 1, name,
-           "a number in [0, 1]", value)
+    _check(
+        isinstance(value, (int, float)) and not isinstance(value, bool) and 0 <= value <= 1,
+        name,
+        "a number in [0, 1]",
+        value,
+    )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -84,8 +92,12 @@ class AgentConfig:
         _check(isinstance(self.critic_layer_norm, bool), "agent.critic_layer_norm", "a bool", self.critic_layer_norm)
         _check(self.critic_obs in CRITIC_OBS, "agent.critic_obs", f"one of {CRITIC_OBS}", self.critic_obs)
         _check(isinstance(self.obs_norm, bool), "agent.obs_norm", "a bool", self.obs_norm)
-        _check(math.isfinite(self.norm_clip) and self.norm_clip > 0, "agent.norm_clip", "a finite number > 0",
-               self.norm_clip)
+        _check(
+            math.isfinite(self.norm_clip) and self.norm_clip > 0,
+            "agent.norm_clip",
+            "a finite number > 0",
+            self.norm_clip,
+        )
 
     @property
     def critic_widths(self) -> tuple[int, ...]:
@@ -136,16 +148,28 @@ class SACConfig:
             self.init_alpha,
         )
         _check(isinstance(self.target_clip, bool), "sac.target_clip", "a bool", self.target_clip)
-        _check(math.isfinite(self.bc_weight) and self.bc_weight >= 0, "sac.bc_weight", "a finite number >= 0",
-               self.bc_weight)
+        _check(
+            math.isfinite(self.bc_weight) and self.bc_weight >= 0,
+            "sac.bc_weight",
+            "a finite number >= 0",
+            self.bc_weight,
+        )
         _positive_int("sac.bc_batch_size", self.bc_batch_size)
         _check(isinstance(self.q_filter, bool), "sac.q_filter", "a bool", self.q_filter)
         _check(self.actor_loss in ACTOR_LOSSES, "sac.actor_loss", f"one of {ACTOR_LOSSES}", self.actor_loss)
         if self.actor_loss == "bc":
-            _check(self.bc_weight > 0, "sac.bc_weight", "> 0 with sac.actor_loss 'bc' (the actor's only loss)",
-                   self.bc_weight)
-            _check(not self.q_filter, "sac.q_filter", "False with sac.actor_loss 'bc' (the filter reads the critics)",
-                   self.q_filter)
+            _check(
+                self.bc_weight > 0,
+                "sac.bc_weight",
+                "> 0 with sac.actor_loss 'bc' (the actor's only loss)",
+                self.bc_weight,
+            )
+            _check(
+                not self.q_filter,
+                "sac.q_filter",
+                "False with sac.actor_loss 'bc' (the filter reads the critics)",
+                self.q_filter,
+            )
 
     def resolved_target_entropy(self, action_dim: int) -> float:
         return -float(action_dim) if self.target_entropy is None else float(self.target_entropy)
@@ -172,12 +196,19 @@ class ReplayConfig:
         )
         _check(math.isfinite(self.success_tau) and self.success_tau > 0, "replay.success_tau", "> 0", self.success_tau)
         if self.curriculum_tau is not None:
-            _check(math.isfinite(self.curriculum_tau) and self.curriculum_tau >= self.success_tau,
-                   "replay.curriculum_tau", f"None or a number >= replay.success_tau ({self.success_tau})",
-                   self.curriculum_tau)
+            _check(
+                math.isfinite(self.curriculum_tau) and self.curriculum_tau >= self.success_tau,
+                "replay.curriculum_tau",
+                f"None or a number >= replay.success_tau ({self.success_tau})",
+                self.curriculum_tau,
+            )
             _positive_int("replay.curriculum_env_steps", self.curriculum_env_steps)
-        _check(isinstance(self.curriculum_env_steps, int) and self.curriculum_env_steps >= 0,
-               "replay.curriculum_env_steps", "an int >= 0", self.curriculum_env_steps)
+        _check(
+            isinstance(self.curriculum_env_steps, int) and self.curriculum_env_steps >= 0,
+            "replay.curriculum_env_steps",
+            "an int >= 0",
+            self.curriculum_env_steps,
+        )
 
     def reward_tau(self, env_steps_after_warmup):
         """The learner's success radius after this many env steps past the warm-up (traced or not)."""
@@ -214,15 +245,25 @@ class DemoConfig:
     def __post_init__(self):
         _check(isinstance(self.warmup, bool), "demo.warmup", "a bool", self.warmup)
         if (self.anneal_start is None) != (self.anneal_end is None):
-            raise ConfigError("demo.anneal_start and demo.anneal_end must be given together (env steps), got "
-                             f"anneal_start={self.anneal_start!r}, anneal_end={self.anneal_end!r}")
+            raise ConfigError(
+                "demo.anneal_start and demo.anneal_end must be given together (env steps), got "
+                f"anneal_start={self.anneal_start!r}, anneal_end={self.anneal_end!r}"
+            )
         if self.anneal_start is not None:
             for name in ("anneal_start", "anneal_end"):
                 v = getattr(self, name)
-                _check(isinstance(v, int) and not isinstance(v, bool) and v >= 0, f"demo.{name}",
-                       "an int >= 0 (env steps)", v)
-            _check(self.anneal_end > self.anneal_start, "demo.anneal_end",
-                   f"greater than demo.anneal_start ({self.anneal_start})", self.anneal_end)
+                _check(
+                    isinstance(v, int) and not isinstance(v, bool) and v >= 0,
+                    f"demo.{name}",
+                    "an int >= 0 (env steps)",
+                    v,
+                )
+            _check(
+                self.anneal_end > self.anneal_start,
+                "demo.anneal_end",
+                f"greater than demo.anneal_start ({self.anneal_start})",
+                self.anneal_end,
+            )
         _check(isinstance(self.label_all, bool), "demo.label_all", "a bool", self.label_all)
         _fraction("demo.fraction", self.fraction)
         _check(math.isfinite(self.noise) and self.noise >= 0, "demo.noise", "a finite number >= 0", self.noise)
@@ -274,8 +315,12 @@ class LoopConfig:
         _positive_int("loop.eval_episodes", self.eval_episodes)
         _check(isinstance(self.seed, int) and not isinstance(self.seed, bool), "loop.seed", "an int", self.seed)
         _check(self.eval_setting in EVAL_SETTINGS, "loop.eval_setting", f"one of {EVAL_SETTINGS}", self.eval_setting)
-        _check(isinstance(self.eval_seed, int) and not isinstance(self.eval_seed, bool), "loop.eval_seed", "an int",
-               self.eval_seed)
+        _check(
+            isinstance(self.eval_seed, int) and not isinstance(self.eval_seed, bool),
+            "loop.eval_seed",
+            "an int",
+            self.eval_seed,
+        )
         # The number of updates per episode batch is a static scan length, so it must be whole.
         n = self.num_envs * self.episode_len * self.utd
         _check(
@@ -307,8 +352,13 @@ class TrainConfig:
     demo: DemoConfig = DemoConfig()
 
     def __post_init__(self):
-        for name, cls in (("agent", AgentConfig), ("sac", SACConfig), ("replay", ReplayConfig), ("loop", LoopConfig),
-                          ("demo", DemoConfig)):
+        for name, cls in (
+            ("agent", AgentConfig),
+            ("sac", SACConfig),
+            ("replay", ReplayConfig),
+            ("loop", LoopConfig),
+            ("demo", DemoConfig),
+        ):
             _check(isinstance(getattr(self, name), cls), name, f"a {cls.__name__}", getattr(self, name))
         # The ring buffer stores whole episodes; one collection batch must fit without overwriting itself.
         capacity_episodes = self.replay.capacity_transitions // self.loop.episode_len
@@ -318,16 +368,34 @@ class TrainConfig:
             f"at least loop.num_envs * loop.episode_len = {self.loop.num_envs * self.loop.episode_len}",
             self.replay.capacity_transitions,
         )
-        _check(self.sac.bc_weight == 0 or self.demo.enabled, "sac.bc_weight",
-               "0 unless demonstrations are collected (demo.warmup or demo.fraction > 0)", self.sac.bc_weight)
+        _check(
+            self.sac.bc_weight == 0 or self.demo.enabled,
+            "sac.bc_weight",
+            "0 unless demonstrations are collected (demo.warmup or demo.fraction > 0)",
+            self.sac.bc_weight,
+        )
         if self.demo.anneal_start is not None:
-            _check(self.demo.enabled, "demo.anneal_start", "None unless demonstrations are collected",
-                   self.demo.anneal_start)
-            _check(self.sac.actor_loss == "sac", "demo.anneal_start",
-                   "None with sac.actor_loss 'bc' (annealing the only loss away leaves the actor nothing to learn)",
-                   self.demo.anneal_start)
-            _check(self.demo.anneal_start >= self.loop.warmup_env_steps, "demo.anneal_start",
-                   f"at or after the warm-up (loop.warmup_env_steps = {self.loop.warmup_env_steps})",
-                   self.demo.anneal_start)
-            _check(self.demo.anneal_end <= self.loop.total_env_steps, "demo.anneal_end",
-                   f"at most loop.total_env_steps ({self.loop.total_env_steps})", self.demo.anneal_end)
+            _check(
+                self.demo.enabled,
+                "demo.anneal_start",
+                "None unless demonstrations are collected",
+                self.demo.anneal_start,
+            )
+            _check(
+                self.sac.actor_loss == "sac",
+                "demo.anneal_start",
+                "None with sac.actor_loss 'bc' (annealing the only loss away leaves the actor nothing to learn)",
+                self.demo.anneal_start,
+            )
+            _check(
+                self.demo.anneal_start >= self.loop.warmup_env_steps,
+                "demo.anneal_start",
+                f"at or after the warm-up (loop.warmup_env_steps = {self.loop.warmup_env_steps})",
+                self.demo.anneal_start,
+            )
+            _check(
+                self.demo.anneal_end <= self.loop.total_env_steps,
+                "demo.anneal_end",
+                f"at most loop.total_env_steps ({self.loop.total_env_steps})",
+                self.demo.anneal_end,
+            )

@@ -89,6 +89,7 @@ def yaw_loss(head: dict, mean: jax.Array, is_box: jax.Array, yaw: jax.Array, box
 def make_step(cfg: EncoderTrainConfig, optimizer):
     """One Adam step; with yaw_weight > 0 the trained state is {"vae": params, "yaw_head": head}."""
     if cfg.yaw_weight > 0:
+
         def loss_with_yaw(state, x, key, pose):
             vae_loss, aux, mean = _vae_loss(state["vae"], x, key, cfg.kl_weight)
             y = yaw_loss(state["yaw_head"], mean, *pose)
@@ -99,7 +100,8 @@ def make_step(cfg: EncoderTrainConfig, optimizer):
         if cfg.yaw_weight > 0:
             masks, *pose = enc.random_masks_with_pose(k_data, cfg.batch_size)
             (loss, aux), grads = jax.value_and_grad(loss_with_yaw, has_aux=True)(
-                params, masks.astype(jnp.float32), k_noise, pose)
+                params, masks.astype(jnp.float32), k_noise, pose
+            )
         else:
             x = enc.random_masks(k_data, cfg.batch_size).astype(jnp.float32)
             (loss, aux), grads = jax.value_and_grad(loss_fn, has_aux=True)(params, x, k_noise, cfg.kl_weight)
@@ -113,8 +115,11 @@ def evaluate(params, held_out: jax.Array) -> dict:
     """Mean / 5th-percentile IoU of thresholded reconstructions of `held_out` masks [n, 64, 64] bool."""
     logits = enc.VAE().apply({"params": params}, held_out.astype(jnp.float32), method=enc.VAE.reconstruct)
     ious = enc.iou(logits > 0, held_out)
-    return {"iou_mean": float(jnp.mean(ious)), "iou_p05": float(jnp.percentile(ious, 5)),
-            "iou_min": float(jnp.min(ious))}
+    return {
+        "iou_mean": float(jnp.mean(ious)),
+        "iou_p05": float(jnp.percentile(ious, 5)),
+        "iou_min": float(jnp.min(ious)),
+    }
 
 
 def train_encoder(cfg: EncoderTrainConfig, progress: Callable[[int, dict], None] | None = None):
@@ -130,22 +135,36 @@ def train_encoder(cfg: EncoderTrainConfig, progress: Callable[[int, dict], None]
     opt_state = optimizer.init(params)
     held_out = jax.jit(enc.random_masks, static_argnums=1)(k_eval, cfg.eval_masks)
     step = jax.jit(make_step(cfg, optimizer), donate_argnums=(0, 1))
-    eval_fn = jax.jit(lambda p: enc.iou(enc.VAE().apply({"params": p}, held_out.astype(jnp.float32),
-                                                          method=enc.VAE.reconstruct) > 0, held_out))
+    eval_fn = jax.jit(
+        lambda p: enc.iou(
+            enc.VAE().apply({"params": p}, held_out.astype(jnp.float32), method=enc.VAE.reconstruct) > 0, held_out
+        )
+    )
     t0 = time.perf_counter()
     curve = []
     for i in range(cfg.steps):
         params, opt_state, m = step(params, opt_state, jax.random.fold_in(k_train, i))
         if (i + 1) % cfg.eval_every == 0 or i + 1 == cfg.steps:
             ious = eval_fn(vae(params))
-            row = {"step": i + 1, "loss": float(m["loss"]), "bce": float(m["bce"]), "kl": float(m["kl"]),
-                   "heldout_iou": float(jnp.mean(ious)), "seconds": time.perf_counter() - t0}
+            row = {
+                "step": i + 1,
+                "loss": float(m["loss"]),
+                "bce": float(m["bce"]),
+                "kl": float(m["kl"]),
+                "heldout_iou": float(jnp.mean(ious)),
+                "seconds": time.perf_counter() - t0,
+            }
             if "yaw" in m:
                 row["yaw_loss"] = float(m["yaw"])
             curve.append(row)
             if progress is not None:
                 progress(i + 1, row)
     params = vae(params)
-    report = {**evaluate(params, held_out), "heldout_masks": cfg.eval_masks, "curve": curve,
-              "train_seconds": time.perf_counter() - t0, "config": dataclasses.asdict(cfg)}
+    report = {
+        **evaluate(params, held_out),
+        "heldout_masks": cfg.eval_masks,
+        "curve": curve,
+        "train_seconds": time.perf_counter() - t0,
+        "config": dataclasses.asdict(cfg),
+    }
     return params, report

@@ -51,8 +51,15 @@ class EvalOptions:
         if given and self.setting != "custom":
             verb = "needs" if len(given) == 1 else "need"
             raise ConfigError(f"{' / '.join(given)} {verb} --setting custom (got --setting {self.setting})")
-        with flag_errors({"objects.mass": "--mass", "objects.friction": "--friction",
-                          "objects.min_height": "--min-height", "setting": "--setting", "shape": "--shape"}):
+        with flag_errors(
+            {
+                "objects.mass": "--mass",
+                "objects.friction": "--friction",
+                "objects.min_height": "--min-height",
+                "setting": "--setting",
+                "shape": "--shape",
+            }
+        ):
             self.spec().object_config()  # validates the ranges
         if self.video is not None:
             if not isinstance(self.video_episodes, int) or self.video_episodes < 1:
@@ -73,6 +80,14 @@ class EvalOptions:
         from train.evaluate import EvalSpec  # imports JAX: not at CLI start-up
 
         record = min(self.video_episodes, self.episodes) if self.video is not None else 0
-        return EvalSpec(setting=self.setting, shape=self.shape, episodes=self.episodes, seed=self.seed,
-                        batch=min(batch, self.episodes), mass=self.mass, friction=self.friction,
-                        min_height=self.min_height, record=record)
+        return EvalSpec(
+            setting=self.setting,
+            shape=self.shape,
+            episodes=self.episodes,
+            seed=self.seed,
+            batch=min(batch, self.episodes),
+            mass=self.mass,
+            friction=self.friction,
+            min_height=self.min_height,
+            record=record,
+        )

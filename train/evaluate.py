@@ -102,8 +102,11 @@ class EvalSpec:
         if self.setting == "difficult":
             cfg = dataclasses.replace(cfg, **DIFFICULT)
         elif self.setting == "custom":
-            fields = {k: v for k, v in (("mass", self.mass), ("friction", self.friction),
-                                        ("min_height", self.min_height)) if v is not None}
+            fields = {
+                k: v
+                for k, v in (("mass", self.mass), ("friction", self.friction), ("min_height", self.min_height))
+                if v is not None
+            }
             cfg = dataclasses.replace(cfg, **fields)
         return cfg
 
@@ -120,8 +123,14 @@ def summarize(per_episode: dict) -> dict:
     keys = METRICS + tuple(k for k in DISTANCE_METRICS if k in per_episode)
     # float64 whatever the input: a fresh evaluation (float32 arrays) and one read back from JSON (Python
     # floats) of the same episodes must give the same summary.
-    return {k: {"mean": float(np.mean(np.asarray(per_episode[k], np.float64))), "sem": sem(per_episode[k]),
-                "n": int(len(per_episode[k]))} for k in keys}
+    return {
+        k: {
+            "mean": float(np.mean(np.asarray(per_episode[k], np.float64))),
+            "sem": sem(per_episode[k]),
+            "n": int(len(per_episode[k])),
+        }
+        for k in keys
+    }
 
 
 def episode_geom_type(shape: str, i: int) -> str:
@@ -172,8 +181,9 @@ class Evaluator:
     when ``expert_config`` is given); reusable across policies and settings of the same shapes (the
     objects are inputs, not constants)."""
 
-    def __init__(self, env_config: EnvConfig, agent_config, batch: int,
-                 expert_config: expert_mod.ExpertConfig | None = None):
+    def __init__(
+        self, env_config: EnvConfig, agent_config, batch: int, expert_config: expert_mod.ExpertConfig | None = None
+    ):
         self.env_config = env_config
         self.expert_config = expert_config
         self.nets = None if expert_config is not None else make_networks(agent_config)
@@ -183,8 +193,12 @@ class Evaluator:
 
     def env(self, geom_type: str) -> PushEnv:
         if geom_type not in self._envs:
-            cfg = dataclasses.replace(self.env_config, objects=dataclasses.replace(
-                self.env_config.objects, shape="cylinder" if geom_type == "cylinder" else "cuboid"))
+            cfg = dataclasses.replace(
+                self.env_config,
+                objects=dataclasses.replace(
+                    self.env_config.objects, shape="cylinder" if geom_type == "cylinder" else "cuboid"
+                ),
+            )
             self._envs[geom_type] = PushEnv(cfg, geom_type)
         return self._envs[geom_type]
 
@@ -201,17 +215,23 @@ class Evaluator:
             s = reset_with(keys, params)
             qpos0 = s.pipeline_state.qpos
             if expert_cfg is not None:
+
                 def policy(s, carry):
                     gt = expert_mod.ground_truth(s.info, params.size, jnp.full(keys.shape[0], geom_type == "box"))
                     return jax.vmap(lambda g: expert_mod.act(expert_cfg, env.config, g))(gt), carry
+
                 carry0 = jnp.zeros((keys.shape[0], 0))
             else:
                 z_goal = enc.encode(encoder_params, s.info["goal_mask"])
 
                 def policy(s, carry):
-                    obs = {"ee_xy": s.obs["ee_xy"], "z_obj": enc.encode(encoder_params, s.obs["object_mask"]),
-                           "z_goal": z_goal}
+                    obs = {
+                        "ee_xy": s.obs["ee_xy"],
+                        "z_obj": enc.encode(encoder_params, s.obs["object_mask"]),
+                        "z_goal": z_goal,
+                    }
                     return nets.act(actor_params, carry, obs, jax.random.PRNGKey(0), True)
+
                 carry0 = nets.init_carry(keys.shape[0])
 
             def body(c, _):
@@ -255,7 +275,7 @@ class Evaluator:
                 idx = idx[idx % 2 == (0 if geom_type == "box" else 1)]
             fn = self.episode_fn(geom_type)
             for start in range(0, len(idx), self.batch):
-                chunk = idx[start:start + self.batch]
+                chunk = idx[start : start + self.batch]
                 pad = self.batch - len(chunk)  # keep one compiled batch size
                 padded = np.concatenate([chunk, np.repeat(chunk[-1:], pad)])
                 params, keys = self.episode_params(spec, geom_type, padded)
@@ -266,20 +286,30 @@ class Evaluator:
                     per.setdefault(k, []).append(np.asarray(v)[: len(chunk)])
                 for j, i in enumerate(chunk):
                     if i < spec.record:
-                        recorded.append({"episode": int(i), "geom_type": geom_type,
-                                         "params": jax.tree.map(lambda a: np.asarray(a[j]), params),
-                                         "qpos": out["qpos"][j], "action": out["action"][j],
-                                         "substeps": out["substeps"][j]})
+                        recorded.append(
+                            {
+                                "episode": int(i),
+                                "geom_type": geom_type,
+                                "params": jax.tree.map(lambda a: np.asarray(a[j]), params),
+                                "qpos": out["qpos"][j],
+                                "action": out["action"][j],
+                                "substeps": out["substeps"][j],
+                            }
+                        )
                 order.append(chunk)
         perm = np.argsort(np.concatenate(order), kind="stable")
         arrays = {k: np.concatenate(v)[perm] for k, v in per.items()}
-        return {"per_episode": arrays, "summary": summarize(arrays),
-                "invalid_episodes": int(np.sum(arrays["invalid"])),
-                "recorded": sorted(recorded, key=lambda r: r["episode"])}
+        return {
+            "per_episode": arrays,
+            "summary": summarize(arrays),
+            "invalid_episodes": int(np.sum(arrays["invalid"])),
+            "recorded": sorted(recorded, key=lambda r: r["episode"]),
+        }
 
 
-def evaluator_for(env_config: EnvConfig, agent_config, batch: int,
-                  expert_config: expert_mod.ExpertConfig | None = None) -> Evaluator:
+def evaluator_for(
+    env_config: EnvConfig, agent_config, batch: int, expert_config: expert_mod.ExpertConfig | None = None
+) -> Evaluator:
     """A shared Evaluator per (environment, agent network or expert, batch): compiled once per process.
     Keyed by what changes compiled code only: evaluations draw their own objects (uniformly, whatever
     the training sampler), uGRU and eGRU share one network, and the expert needs no network."""

@@ -29,8 +29,10 @@ class StopOnSignal:
         if self.requested is not None:
             raise KeyboardInterrupt
         self.requested = signal.Signals(signum).name
-        sys.stderr.write(f"\nmjx-push: {self.requested} received: stopping after this batch with a checkpoint "
-                         "(send it again to stop at once, losing the batch)\n")
+        sys.stderr.write(
+            f"\nmjx-push: {self.requested} received: stopping after this batch with a checkpoint "
+            "(send it again to stop at once, losing the batch)\n"
+        )
         sys.stderr.flush()
 
     def __enter__(self) -> StopOnSignal:

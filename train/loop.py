@@ -149,8 +149,11 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
         def body(s, k):
             k_sample, k_demo, k_update = jax.random.split(k, 3)
             batch = replay.sample(buffer, k_sample, sac_cfg.batch_size, success_tau=tau)
-            demo = (replay.sample(buffer, k_demo, sac_cfg.bc_batch_size, demos_only=not demo_cfg.label_all,
-                                  relabel=False) if bc else None)
+            demo = (
+                replay.sample(buffer, k_demo, sac_cfg.bc_batch_size, demos_only=not demo_cfg.label_all, relabel=False)
+                if bc
+                else None
+            )
             return update(s, batch, k_update, demo, bc_scale)
 
         sac_state, metrics = jax.lax.scan(body, sac_state, jax.random.split(key, loop.updates_per_iteration))
@@ -194,8 +197,8 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
         skip_metrics = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), update_metrics_shape)
         if loop.updates_per_iteration > 0:
             sac_state, update_metrics = jax.lax.cond(
-                learn, run_updates, lambda s, b, k, t, w: (s, skip_metrics), sac_state, buffer, k_update, tau,
-                bc_scale)
+                learn, run_updates, lambda s, b, k, t, w: (s, skip_metrics), sac_state, buffer, k_update, tau, bc_scale
+            )
         else:
             update_metrics = skip_metrics
 
@@ -284,8 +287,9 @@ class Runner:
             loop = self.trainer.config.loop
             chunks, covered = [], 0
             while covered < loop.eval_episodes:  # until every episode index below eval_episodes is run
-                ep = jax.device_get(self.adapter.eval_episodes(loop.eval_setting, loop.eval_seed, len(chunks),
-                                                               loop.num_envs))
+                ep = jax.device_get(
+                    self.adapter.eval_episodes(loop.eval_setting, loop.eval_seed, len(chunks), loop.num_envs)
+                )
                 covered += int(np.sum(np.asarray(ep["index"]) < loop.eval_episodes))
                 chunks.append(ep)
             self._eval_chunks = chunks
@@ -327,15 +331,19 @@ class Runner:
         expert = self.expert_envs(steps)
         t0 = time.perf_counter()
         episodes, stats = jax.block_until_ready(
-            self.rollout(ts.sac.actor_params, k_collect, random_actions, deterministic, jnp.asarray(expert)))
+            self.rollout(ts.sac.actor_params, k_collect, random_actions, deterministic, jnp.asarray(expert))
+        )
         t1 = time.perf_counter()
         ts, metrics = jax.block_until_ready(self.learn(ts, episodes, k_update))
         metrics.update(rollout_s=t1 - t0, learn_s=time.perf_counter() - t1)
         # Training metrics describe the agent's own episodes when there are any.
         own = ~expert if (~expert).any() else expert
         stats = {k: v[own] for k, v in stats.items()}
-        return ts, {**{f"train/{k}": v for k, v in summarize(stats).items()}, **metrics,
-                    "train/expert_envs": int(expert.sum())}
+        return ts, {
+            **{f"train/{k}": v for k, v in summarize(stats).items()},
+            **metrics,
+            "train/expert_envs": int(expert.sum()),
+        }
 
     def evaluate(self, actor_params, key: jax.Array | None = None, expert: bool = False) -> dict:
         """``eval_episodes`` deterministic episodes through the shared rollout (the shared episodes
@@ -347,16 +355,19 @@ class Runner:
         flags = (jnp.asarray(False), jnp.asarray(True), jnp.asarray(np.full(t.config.loop.num_envs, expert)))
         if self.shared_episodes and key is None:
             chunks = self.eval_chunks()
-            stats = [self.rollout(actor_params, jax.random.fold_in(t.eval_key, c), *flags, episodes=ep)[1]
-                     for c, ep in enumerate(chunks)]
+            stats = [
+                self.rollout(actor_params, jax.random.fold_in(t.eval_key, c), *flags, episodes=ep)[1]
+                for c, ep in enumerate(chunks)
+            ]
             index = np.concatenate([np.asarray(ep["index"]) for ep in chunks])
             order = np.argsort(index, kind="stable")
             order = order[index[order] < n]  # the protocol's first n episodes
             flat = {k: jnp.concatenate([c[k] for c in stats])[order] for k in stats[0]}
         else:
             key = t.eval_key if key is None else key
-            stats = [self.rollout(actor_params, jax.random.fold_in(key, c), *flags)[1]
-                     for c in range(t.num_eval_chunks)]
+            stats = [
+                self.rollout(actor_params, jax.random.fold_in(key, c), *flags)[1] for c in range(t.num_eval_chunks)
+            ]
             flat = {k: jnp.concatenate([c[k] for c in stats])[:n] for k in stats[0]}
         return {**summarize(flat), **flat}
 

@@ -174,8 +174,13 @@ class Normalizer(nn.Module):
     clip: float = 5.0
 
     def setup(self):
-        self.stats = {name: (self.variable("norm", f"{name}_mean", jnp.zeros, (dim,)),
-                             self.variable("norm", f"{name}_std", jnp.ones, (dim,))) for name, dim in self.groups.items()}
+        self.stats = {
+            name: (
+                self.variable("norm", f"{name}_mean", jnp.zeros, (dim,)),
+                self.variable("norm", f"{name}_std", jnp.ones, (dim,)),
+            )
+            for name, dim in self.groups.items()
+        }
 
     def __call__(self, name: str, x: jax.Array) -> jax.Array:
         if name not in self.stats:
@@ -237,8 +242,11 @@ class PrivilegedQNetwork(nn.Module):
 
     @nn.compact
     def __call__(self, episode, idx, action):
-        norm = Normalizer(critic_norm_groups(self.agent.critic_obs, self.priv_dim) if self.agent.obs_norm else {},
-                          self.agent.norm_clip, name="norm")
+        norm = Normalizer(
+            critic_norm_groups(self.agent.critic_obs, self.priv_dim) if self.agent.obs_norm else {},
+            self.agent.norm_clip,
+            name="norm",
+        )
         priv = take_steps(episode["priv"], idx)  # [B, K, P]
         goal = jnp.broadcast_to(episode["goal_xy"][:, None], priv.shape[:-1] + (2,))
         # The goal relative to the achieved goal (priv's first two numbers), in metres: the distance
@@ -251,8 +259,14 @@ class PrivilegedQNetwork(nn.Module):
 def _twin(module):
     # Twin critics: two independent Q networks stored with a leading axis of 2 and evaluated in one
     # vectorised pass (their normalisation statistics are stacked too and kept equal).
-    return nn.vmap(module, variable_axes={"params": 0, "norm": 0}, split_rngs={"params": True}, in_axes=None,
-                   out_axes=0, axis_size=2)
+    return nn.vmap(
+        module,
+        variable_axes={"params": 0, "norm": 0},
+        split_rngs={"params": True},
+        in_axes=None,
+        out_axes=0,
+        axis_size=2,
+    )
 
 
 TwinQ = _twin(QNetwork)
@@ -290,15 +304,21 @@ class Networks:
     def critic(self) -> nn.Module:
         if self.agent.critic_obs == "privileged":
             if self.priv_dim < 2:  # only the learner builds critics; policies and exports need the actor alone
-                raise ConfigError("agent.critic_obs 'privileged' needs an environment that reports its ground-truth "
-                                 f"state (priv_dim >= 2, got {self.priv_dim})")
+                raise ConfigError(
+                    "agent.critic_obs 'privileged' needs an environment that reports its ground-truth "
+                    f"state (priv_dim >= 2, got {self.priv_dim})"
+                )
             return TwinPrivilegedQ(self.agent, self.priv_dim)
         return TwinQ(self.agent)
 
     def dummy_episode(self, episode_len: int) -> dict:
         L = episode_len + 1
-        ep = {"ee_xy": jnp.zeros((1, L, 2)), "z_obj": jnp.zeros((1, L, 6)), "z_goal": jnp.zeros((1, 6)),
-              "goal_xy": jnp.zeros((1, 2))}
+        ep = {
+            "ee_xy": jnp.zeros((1, L, 2)),
+            "z_obj": jnp.zeros((1, L, 6)),
+            "z_goal": jnp.zeros((1, 6)),
+            "goal_xy": jnp.zeros((1, 2)),
+        }
         if self.priv_dim:
             ep["priv"] = jnp.zeros((1, L, self.priv_dim))
         return ep

@@ -91,27 +91,78 @@ _DEMO = DemoConfig(warmup=True, fraction=0.25, label_all=True)
 _PRESETS = {
     # One batch of expert demonstrations, 100 updates, one evaluation: two rollouts in all, since on
     # 2 CPU cores compilation is the whole cost.
-    "smoke": dict(loop=dict(num_envs=8, total_env_steps=800, warmup_env_steps=400, utd=0.25,
-                            eval_every_env_steps=800, eval_episodes=8),
-                  sac=dict(batch_size=64, bc_batch_size=32, **_SAC_FEATURES), replay=50_000, agent=_AGENT,
-                  demo=_DEMO, env=ACTION_BOX),
+    "smoke": dict(
+        loop=dict(
+            num_envs=8, total_env_steps=800, warmup_env_steps=400, utd=0.25, eval_every_env_steps=800, eval_episodes=8
+        ),
+        sac=dict(batch_size=64, bc_batch_size=32, **_SAC_FEATURES),
+        replay=50_000,
+        agent=_AGENT,
+        demo=_DEMO,
+        env=ACTION_BOX,
+    ),
     # Evaluations cost about four batches each (100 episodes in chunks of 32), so the main job
     # evaluates once, at the end; metrics.csv and the progress lines follow training success per batch.
-    "cpu": dict(loop=dict(num_envs=32, total_env_steps=28_800, warmup_env_steps=4_800, utd=0.25,
-                          eval_every_env_steps=28_800, eval_episodes=100),
-                sac=dict(batch_size=256, **_SAC_FEATURES), replay=300_000, agent=_AGENT, demo=_DEMO,
-                env=ACTION_BOX),
-    "cpu-long": dict(loop=dict(num_envs=32, total_env_steps=64_000, warmup_env_steps=4_800, utd=0.25,
-                               eval_every_env_steps=16_000, eval_episodes=100),
-                     sac=dict(batch_size=256, **_SAC_FEATURES), replay=300_000, agent=_AGENT, demo=_DEMO,
-                     env=ACTION_BOX),
-    "reference": dict(loop=dict(num_envs=10, total_env_steps=29_000, warmup_env_steps=10_000, utd=1.0,
-                                eval_every_env_steps=5_000, eval_episodes=100),
-                      sac=dict(batch_size=256), replay=300_000, agent={}, demo=DemoConfig(), env={}),
-    "paper": dict(loop=dict(num_envs=2048, total_env_steps=3_072_000, warmup_env_steps=102_400, utd=0.125,
-                            eval_every_env_steps=204_800, eval_episodes=2048),
-                  sac=dict(batch_size=1024, bc_batch_size=256, **_SAC_FEATURES), replay=3_000_000, agent=_AGENT,
-                  demo=_DEMO, env=ACTION_BOX),
+    "cpu": dict(
+        loop=dict(
+            num_envs=32,
+            total_env_steps=28_800,
+            warmup_env_steps=4_800,
+            utd=0.25,
+            eval_every_env_steps=28_800,
+            eval_episodes=100,
+        ),
+        sac=dict(batch_size=256, **_SAC_FEATURES),
+        replay=300_000,
+        agent=_AGENT,
+        demo=_DEMO,
+        env=ACTION_BOX,
+    ),
+    "cpu-long": dict(
+        loop=dict(
+            num_envs=32,
+            total_env_steps=64_000,
+            warmup_env_steps=4_800,
+            utd=0.25,
+            eval_every_env_steps=16_000,
+            eval_episodes=100,
+        ),
+        sac=dict(batch_size=256, **_SAC_FEATURES),
+        replay=300_000,
+        agent=_AGENT,
+        demo=_DEMO,
+        env=ACTION_BOX,
+    ),
+    "reference": dict(
+        loop=dict(
+            num_envs=10,
+            total_env_steps=29_000,
+            warmup_env_steps=10_000,
+            utd=1.0,
+            eval_every_env_steps=5_000,
+            eval_episodes=100,
+        ),
+        sac=dict(batch_size=256),
+        replay=300_000,
+        agent={},
+        demo=DemoConfig(),
+        env={},
+    ),
+    "paper": dict(
+        loop=dict(
+            num_envs=2048,
+            total_env_steps=3_072_000,
+            warmup_env_steps=102_400,
+            utd=0.125,
+            eval_every_env_steps=204_800,
+            eval_episodes=2048,
+        ),
+        sac=dict(batch_size=1024, bc_batch_size=256, **_SAC_FEATURES),
+        replay=3_000_000,
+        agent=_AGENT,
+        demo=_DEMO,
+        env=ACTION_BOX,
+    ),
 }
 
 

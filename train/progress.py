@@ -30,9 +30,15 @@ class TrainProgress:
         self.plain = not console.is_terminal  # a log file: whole lines, no bar
         self.log_every_s = log_every_s
         self.bar = Progress(
-            TextColumn("[bold]env steps"), BarColumn(), MofNCompleteColumn(),
-            TextColumn("{task.fields[rates]}"), TextColumn("{task.fields[scores]}"),
-            TimeElapsedColumn(), TimeRemainingColumn(), console=console, disable=not enabled or self.plain,
+            TextColumn("[bold]env steps"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn("{task.fields[rates]}"),
+            TextColumn("{task.fields[scores]}"),
+            TimeElapsedColumn(),
+            TimeRemainingColumn(),
+            console=console,
+            disable=not enabled or self.plain,
         )
         self.task = None
         self.last_eval = ""
@@ -56,12 +62,16 @@ class TrainProgress:
     def update(self, m: dict) -> None:
         steps = int(m["env_steps"])
         rates = f"{m['env_steps_per_s']:,.0f} steps/s  {m['updates_per_s']:,.0f} upd/s"
-        scores = (f"train success {m['train/success_rate']:.0%} reward {m['train/mean_reward']:.1f} "
-                  f"final dist {100 * m['train/final_distance']:.1f} cm")
+        scores = (
+            f"train success {m['train/success_rate']:.0%} reward {m['train/mean_reward']:.1f} "
+            f"final dist {100 * m['train/final_distance']:.1f} cm"
+        )
         evaluated = "eval/mean_reward" in m
         if evaluated:
-            self.last_eval = (f"  eval success {m['eval/success_rate']:.0%} reward {m['eval/mean_reward']:.1f} "
-                              f"final dist {100 * m['eval/final_distance']:.1f} cm")
+            self.last_eval = (
+                f"  eval success {m['eval/success_rate']:.0%} reward {m['eval/mean_reward']:.1f} "
+                f"final dist {100 * m['eval/final_distance']:.1f} cm"
+            )
         self.bar.update(self.task, completed=steps, rates=rates, scores=scores + self.last_eval)
         now = time.monotonic()
         if not self.enabled:
@@ -81,5 +91,7 @@ class TrainProgress:
         s0, t0 = self._first
         if steps > s0 and not last:  # rate since the first batch, which includes compilation
             remaining = f", ~{_duration((now - t0) / (steps - s0) * (self.total - steps))} left"
-        self._line(f"{steps:>9,}/{self.total:,} env steps ({steps / self.total:.0%}) {rates}  {scores}"
-                   f"{self.last_eval}  [{_duration(now - self._t0)}{remaining}]")
+        self._line(
+            f"{steps:>9,}/{self.total:,} env steps ({steps / self.total:.0%}) {rates}  {scores}"
+            f"{self.last_eval}  [{_duration(now - self._t0)}{remaining}]"
+        )

@@ -23,8 +23,17 @@ from mjx_push.errors import ConfigError
 
 # The privileged state, per environment step: name -> width, in order. The object's xy comes first
 # (the learner's convention: priv[:2] is the achieved goal).
-PRIV_LAYOUT = (("object_xy", 2), ("object_yaw_cos_sin", 2), ("object_vel", 3), ("ee_xy", 2), ("ee_vel", 2),
-               ("size", 3), ("is_box", 1), ("log_mass", 1), ("friction", 1))
+PRIV_LAYOUT = (
+    ("object_xy", 2),
+    ("object_yaw_cos_sin", 2),
+    ("object_vel", 3),
+    ("ee_xy", 2),
+    ("ee_vel", 2),
+    ("size", 3),
+    ("is_box", 1),
+    ("log_mass", 1),
+    ("friction", 1),
+)
 PRIV_DIM = sum(w for _, w in PRIV_LAYOUT)
 
 
@@ -60,9 +69,14 @@ def privileged_state(s: BatchState, is_box: jax.Array) -> jax.Array:
 def expert_ground_truth(priv: jax.Array, goal_xy: jax.Array) -> dict:
     """The scripted expert's inputs (mjx_push.expert.act) read back from the privileged state."""
     cs = priv[..., PRIV["object_yaw_cos_sin"]]
-    return {"ee_xy": priv[..., PRIV["ee_xy"]], "object_xy": priv[..., PRIV["object_xy"]],
-            "object_yaw": jnp.arctan2(cs[..., 1], cs[..., 0]), "goal_xy": goal_xy,
-            "size": priv[..., PRIV["size"]], "is_box": priv[..., PRIV["is_box"]][..., 0] > 0.5}
+    return {
+        "ee_xy": priv[..., PRIV["ee_xy"]],
+        "object_xy": priv[..., PRIV["object_xy"]],
+        "object_yaw": jnp.arctan2(cs[..., 1], cs[..., 0]),
+        "goal_xy": goal_xy,
+        "size": priv[..., PRIV["size"]],
+        "is_box": priv[..., PRIV["is_box"]][..., 0] > 0.5,
+    }
 
 
 # Substeps per scheduler tick: each environment takes its next action as soon as its own step's a_s
@@ -70,12 +84,21 @@ def expert_ground_truth(priv: jax.Array, goal_xy: jax.Array) -> dict:
 # (benchmarks/rollout_throughput.py measures the effect of this value).
 DEFAULT_SUBSTEP_CHUNK = 50
 # The protocol's shape filter (train.evaluate.SHAPES) for a training shape filter (objects.SHAPE_FILTERS).
-EVAL_SHAPE = {"any": "all", "cylinder": "cylinder", "cuboid": "cuboid", "square": "square",
-              "rectangular": "rectangular"}
+EVAL_SHAPE = {
+    "any": "all",
+    "cylinder": "cylinder",
+    "cuboid": "cuboid",
+    "square": "square",
+    "rectangular": "rectangular",
+}
 
 
-def make_push_adapter(env_config: EnvConfig, encoder_params, substep_chunk: int = DEFAULT_SUBSTEP_CHUNK,
-                      expert_config: expert_mod.ExpertConfig = expert_mod.ExpertConfig()) -> EnvAdapter:
+def make_push_adapter(
+    env_config: EnvConfig,
+    encoder_params,
+    substep_chunk: int = DEFAULT_SUBSTEP_CHUNK,
+    expert_config: expert_mod.ExpertConfig = expert_mod.ExpertConfig(),
+) -> EnvAdapter:
     """Adapter over `PushBatch(env_config, n)`; one batch object is built per environment count `n`.
     `substep_chunk` 0 steps all environments in lockstep; both give the same episodes. The adapter's
     expert is `mjx_push.expert` under `expert_config`."""
@@ -97,8 +120,12 @@ def make_push_adapter(env_config: EnvConfig, encoder_params, substep_chunk: int 
 
     def observe(s: BatchState) -> dict:
         obs = s.obs
-        return {"ee_xy": obs["ee_xy"], "z_obj": enc.encode(encoder_params, obs["object_mask"]),
-                "obj_xy": s.info["object_xy"], "priv": privileged_state(s, is_box(s))}
+        return {
+            "ee_xy": obs["ee_xy"],
+            "z_obj": enc.encode(encoder_params, obs["object_mask"]),
+            "obj_xy": s.info["object_xy"],
+            "priv": privileged_state(s, is_box(s)),
+        }
 
     def expert(step_obs: dict, info: dict) -> jax.Array:
         gt = expert_ground_truth(step_obs["priv"], info["goal_xy"])
@@ -144,10 +171,21 @@ def make_push_adapter(env_config: EnvConfig, encoder_params, substep_chunk: int 
             keys.append(k)
             index.append(idx)
         cat = lambda *xs: jnp.concatenate(xs)  # noqa: E731
-        return {"use": np.asarray(True), "keys": cat(*keys), "params": jax.tree.map(cat, *params),
-                "index": np.concatenate(index)}
+        return {
+            "use": np.asarray(True),
+            "keys": cat(*keys),
+            "params": jax.tree.map(cat, *params),
+            "index": np.concatenate(index),
+        }
 
-    return EnvAdapter(reset=reset, step=step, success_tau=env_config.success_tau,
-                      scheduler=SubstepScheduler(begin, advance, ready, finish, substep_chunk) if substep_chunk else None,
-                      priv_dim=PRIV_DIM, expert=expert, mesh=lambda n: batch(n).mesh,
-                      groups=lambda n: batch(n).counts, eval_episodes=eval_episodes)
+    return EnvAdapter(
+        reset=reset,
+        step=step,
+        success_tau=env_config.success_tau,
+        scheduler=SubstepScheduler(begin, advance, ready, finish, substep_chunk) if substep_chunk else None,
+        priv_dim=PRIV_DIM,
+        expert=expert,
+        mesh=lambda n: batch(n).mesh,
+        groups=lambda n: batch(n).counts,
+        eval_episodes=eval_episodes,
+    )

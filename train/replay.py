@@ -48,8 +48,9 @@ class ReplayBuffer:
         return self.data["action"].shape[1]
 
 
-def episode_spec(episode_len: int, action_dim: int = 3, priv_dim: int = 0,
-                 expert_labels: bool = False) -> dict[str, tuple[tuple[int, ...], jnp.dtype]]:
+def episode_spec(
+    episode_len: int, action_dim: int = 3, priv_dim: int = 0, expert_labels: bool = False
+) -> dict[str, tuple[tuple[int, ...], jnp.dtype]]:
     """Shape (without the episode axis) and dtype of each field of an episode record."""
     T = episode_len
     spec = {
@@ -69,8 +70,9 @@ def episode_spec(episode_len: int, action_dim: int = 3, priv_dim: int = 0,
     return spec
 
 
-def init(config: ReplayConfig, episode_len: int, action_dim: int = 3, priv_dim: int = 0,
-         expert_labels: bool = False) -> ReplayBuffer:
+def init(
+    config: ReplayConfig, episode_len: int, action_dim: int = 3, priv_dim: int = 0, expert_labels: bool = False
+) -> ReplayBuffer:
     capacity = config.capacity_transitions // episode_len
     if capacity < 1:
         raise ConfigError(
@@ -124,8 +126,14 @@ def num_demo_episodes(buffer: ReplayBuffer) -> jax.Array:
     return jnp.sum((buffer.data["valid"] & buffer.data["demo"]).astype(jnp.int32))
 
 
-def sample(buffer: ReplayBuffer, key: jax.Array, batch_size: int, success_tau=None,
-           demos_only: bool = False, relabel: bool = True) -> dict[str, jax.Array]:
+def sample(
+    buffer: ReplayBuffer,
+    key: jax.Array,
+    batch_size: int,
+    success_tau=None,
+    demos_only: bool = False,
+    relabel: bool = True,
+) -> dict[str, jax.Array]:
     """Sample transitions (e, t) with HER "future" relabelling.
 
     ``success_tau`` (default the buffer's) is the radius of the recomputed rewards (a curriculum may

@@ -17,12 +17,26 @@ from train.evaluate import DISTANCE_METRICS, METRICS, sem
 from train.loop import improves
 from mjx_push.errors import ConfigError
 
-LABELS = {"success": "success rate", "reward": "mean episode reward", "overshoot": "overshoot corrections",
-          "distance": "distance corrections"}
-AGENT_NAMES = {"vpm": "VPM", "stacked": "Stacked", "ugru": "uGRU", "egru": "eGRU",
-               "expert": "scripted expert (ground truth)"}
-SHAPE_NAMES = {"cylinder": "cylinder", "square": "square cuboid", "rectangular": "rectangular cuboid",
-               "all": "all shapes", "cuboid": "cuboid"}
+LABELS = {
+    "success": "success rate",
+    "reward": "mean episode reward",
+    "overshoot": "overshoot corrections",
+    "distance": "distance corrections",
+}
+AGENT_NAMES = {
+    "vpm": "VPM",
+    "stacked": "Stacked",
+    "ugru": "uGRU",
+    "egru": "eGRU",
+    "expert": "scripted expert (ground truth)",
+}
+SHAPE_NAMES = {
+    "cylinder": "cylinder",
+    "square": "square cuboid",
+    "rectangular": "rectangular cuboid",
+    "all": "all shapes",
+    "cuboid": "cuboid",
+}
 
 
 def combine(summaries: list[dict]) -> dict:
@@ -32,15 +46,22 @@ def combine(summaries: list[dict]) -> dict:
     for m in METRICS + tuple(k for k in DISTANCE_METRICS if all(k in s for s in summaries)):
         means = np.array([s[m]["mean"] for s in summaries])
         err = summaries[0][m]["sem"] if len(summaries) == 1 else sem(means)
-        out[m] = {"mean": float(means.mean()), "sem": float(err), "n_seeds": len(summaries),
-                  "n_episodes": int(sum(s[m]["n"] for s in summaries))}
+        out[m] = {
+            "mean": float(means.mean()),
+            "sem": float(err),
+            "n_seeds": len(summaries),
+            "n_episodes": int(sum(s[m]["n"] for s in summaries)),
+        }
     return out
 
 
 def table(results: dict) -> str:
     """Markdown table: one row per (shape, agent)."""
-    lines = ["| shape | agent | success rate | mean reward | overshoot corr. | distance corr. | "
-             "object-goal distance, reset -> end (cm) |", "|---|---|---|---|---|---|---|"]
+    lines = [
+        "| shape | agent | success rate | mean reward | overshoot corr. | distance corr. | "
+        "object-goal distance, reset -> end (cm) |",
+        "|---|---|---|---|---|---|---|",
+    ]
     shapes = list(next(iter(results.values())).keys())
     for shape in shapes:
         for agent in results:
@@ -49,11 +70,15 @@ def table(results: dict) -> str:
             cells = [f"{100 * s['mean']:.0f} ± {100 * s['sem']:.0f} %"]
             cells += [f"{c[m]['mean']:.2f} ± {c[m]['sem']:.2f}" for m in ("reward", "overshoot", "distance")]
             if "final_distance" in c:
-                cells.append(f"{100 * c['start_distance']['mean']:.1f} -> {100 * c['final_distance']['mean']:.1f} "
-                             f"± {100 * c['final_distance']['sem']:.1f}")
+                cells.append(
+                    f"{100 * c['start_distance']['mean']:.1f} -> {100 * c['final_distance']['mean']:.1f} "
+                    f"± {100 * c['final_distance']['sem']:.1f}"
+                )
             else:
                 cells.append("-")
-            lines.append(f"| {SHAPE_NAMES.get(shape, shape)} | {AGENT_NAMES.get(agent, agent)} | " + " | ".join(cells) + " |")
+            lines.append(
+                f"| {SHAPE_NAMES.get(shape, shape)} | {AGENT_NAMES.get(agent, agent)} | " + " | ".join(cells) + " |"
+            )
     return "\n".join(lines)
 
 
@@ -72,9 +97,14 @@ def bar_figure(results: dict, path: Path) -> None:
         for j, agent in enumerate(agents):
             stats = [combine(results[agent][s])[m] for s in shapes]
             scale = 100.0 if m == "success" else 1.0
-            ax.bar(np.arange(len(shapes)) + (j - (len(agents) - 1) / 2) * width,
-                   [scale * s["mean"] for s in stats], width, yerr=[scale * s["sem"] for s in stats],
-                   capsize=3, label=AGENT_NAMES.get(agent, agent))
+            ax.bar(
+                np.arange(len(shapes)) + (j - (len(agents) - 1) / 2) * width,
+                [scale * s["mean"] for s in stats],
+                width,
+                yerr=[scale * s["sem"] for s in stats],
+                capsize=3,
+                label=AGENT_NAMES.get(agent, agent),
+            )
         ax.set_xticks(np.arange(len(shapes)), [SHAPE_NAMES.get(s, s) for s in shapes], fontsize=8)
         ax.set_title(LABELS[m] + (" (%)" if m == "success" else ""))
         ax.grid(axis="y", alpha=0.3)
@@ -168,12 +198,20 @@ def curve_figure(training: dict[str, list[dict]], path: Path) -> None:
         for k, t in enumerate(runs):
             label = AGENT_NAMES.get(agent, agent) if k == 0 else None
             axes[0].plot(t["eval_env_steps"], t["eval_reward"], "o-", color=f"C{j}", label=label, alpha=0.8)
-            axes[1].plot(t["eval_env_steps"], [100 * v for v in t["eval_success"]], "o-", color=f"C{j}",
-                         label=label, alpha=0.8)
-            axes[2].plot(t["eval_env_steps"], [100 * v for v in t["eval_final_distance"]], "o-", color=f"C{j}",
-                         label=label, alpha=0.8)
-    for ax, title in zip(axes, ("mean evaluation reward", "evaluation success rate (%)",
-                                "object-goal distance at the end (cm)")):
+            axes[1].plot(
+                t["eval_env_steps"], [100 * v for v in t["eval_success"]], "o-", color=f"C{j}", label=label, alpha=0.8
+            )
+            axes[2].plot(
+                t["eval_env_steps"],
+                [100 * v for v in t["eval_final_distance"]],
+                "o-",
+                color=f"C{j}",
+                label=label,
+                alpha=0.8,
+            )
+    for ax, title in zip(
+        axes, ("mean evaluation reward", "evaluation success rate (%)", "object-goal distance at the end (cm)")
+    ):
         ax.set_title(title)
         ax.set_xlabel("environment steps")
         ax.grid(alpha=0.3)
@@ -184,14 +222,19 @@ def curve_figure(training: dict[str, list[dict]], path: Path) -> None:
 
 
 def training_table(training: dict[str, list[dict]]) -> str:
-    lines = ["| agent | seeds | env steps | gradient updates | training wall time (min, mean per seed) | "
-             "best evaluation reward (mean) | evaluated actor (env steps) |", "|---|---|---|---|---|---|---|"]
+    lines = [
+        "| agent | seeds | env steps | gradient updates | training wall time (min, mean per seed) | "
+        "best evaluation reward (mean) | evaluated actor (env steps) |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for agent, runs in training.items():
         best = np.mean([max(t["eval_reward"]) if t["eval_reward"] else np.nan for t in runs])
         picked = ", ".join(f"{t['selected_env_steps']:,}" if t["selected_env_steps"] is not None else "-" for t in runs)
-        lines.append(f"| {AGENT_NAMES.get(agent, agent)} | {len(runs)} | {runs[0]['env_steps']:,} | "
-                     f"{runs[0]['updates']:,} | {np.mean([t['wall_s'] for t in runs]) / 60:.1f} | {best:.2f} | "
-                     f"{picked} |")
+        lines.append(
+            f"| {AGENT_NAMES.get(agent, agent)} | {len(runs)} | {runs[0]['env_steps']:,} | "
+            f"{runs[0]['updates']:,} | {np.mean([t['wall_s'] for t in runs]) / 60:.1f} | {best:.2f} | "
+            f"{picked} |"
+        )
     return "\n".join(lines)
 
 
@@ -209,7 +252,7 @@ def write_report(out_dir: Path, results: dict, meta: dict, runs: dict[str, list[
         training_text = f"""
 ## Training
 
-Deterministic evaluations during training ({meta.get('budget')} budget; the best policy by mean reward
+Deterministic evaluations during training ({meta.get("budget")} budget; the best policy by mean reward
 is the one evaluated above):
 
 ![learning curves](learning_curves.png)
@@ -217,17 +260,19 @@ is the one evaluated above):
 {training_table(training)}
 """
     combined = {a: {s: combine(v) for s, v in per_shape.items()} for a, per_shape in results.items()}
-    (out_dir / "results.json").write_text(json.dumps({"meta": meta, "per_seed": results, "combined": combined,
-                                                      "training": training}, indent=2) + "\n")
+    (out_dir / "results.json").write_text(
+        json.dumps({"meta": meta, "per_seed": results, "combined": combined, "training": training}, indent=2) + "\n"
+    )
     missing = meta.get("missing_runs") or []
-    missing_text = (f"\nNot finished when this report was built, so not in it: {', '.join(missing)}.\n"
-                    if missing else "")
+    missing_text = (
+        f"\nNot finished when this report was built, so not in it: {', '.join(missing)}.\n" if missing else ""
+    )
     seeds = meta.get("seeds", 1)
     err = "standard error across seeds" if seeds > 1 else "standard error over test episodes"
-    text = f"""# mjx-push reproduction: {meta.get('budget', '?')} budget
+    text = f"""# mjx-push reproduction: {meta.get("budget", "?")} budget
 
-Agents trained with `mjx-push reproduce --budget {meta.get('budget')} --seeds {seeds}`, each evaluated on
-{meta.get('episodes')} deterministic episodes per shape in the **{meta.get('setting')}** setting
+Agents trained with `mjx-push reproduce --budget {meta.get("budget")} --seeds {seeds}`, each evaluated on
+{meta.get("episodes")} deterministic episodes per shape in the **{meta.get("setting")}** setting
 (the same seeds for every agent). Values are mean ± {err}.
 
 {table(results)}
@@ -238,7 +283,7 @@ Sliding friction force densities of the two samplers (paper Fig. 4), drawn from 
 
 ![friction force densities](friction_force.png)
 {training_text}
-Wall time of this `reproduce` invocation: {meta.get('wall_s', 0) / 60:.1f} min ({meta.get('machine', '')}); runs and
+Wall time of this `reproduce` invocation: {meta.get("wall_s", 0) / 60:.1f} min ({meta.get("machine", "")}); runs and
 evaluations it reused from an earlier invocation are not counted (the training table has each run's own time).
 """
     path = out_dir / "report.md"

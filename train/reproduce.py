@@ -76,8 +76,10 @@ def scored_policy(run_dir: Path) -> tuple[str, int]:
         meta = run_dir / f"{name}.json"
         if meta.is_file() and json.loads(meta.read_text())["scores"].get(key) == pick:
             return name, pick
-    raise ConfigError(f"the selection rule picks the actor of env step {pick} in {run_dir}, but neither "
-                     "best_policy nor final_policy holds it (a run of an older rule): retrain it")
+    raise ConfigError(
+        f"the selection rule picks the actor of env step {pick} in {run_dir}, but neither "
+        "best_policy nor final_policy holds it (a run of an older rule): retrain it"
+    )
 
 
 def policy_fingerprint(path: Path) -> str:
@@ -96,16 +98,25 @@ def evaluate_run(cfg: presets.RunConfig, run_dir: Path, spec: EvalSpec, log: Cal
     if path.is_file():
         cached = _read_cache(path)
         per = cached.get("per_episode", {})
-        if (cached.get("policy_sha256") == fingerprint and cached.get("spec") == json.loads(json.dumps(spec_record))
-                and all(k in per for k in METRICS + DISTANCE_METRICS)):  # older caches lack the distances
+        if (
+            cached.get("policy_sha256") == fingerprint
+            and cached.get("spec") == json.loads(json.dumps(spec_record))
+            and all(k in per for k in METRICS + DISTANCE_METRICS)
+        ):  # older caches lack the distances
             log(f"reusing evaluation {path}")
             return summarize({k: np.asarray(v) for k, v in per.items()})
     t0 = time.perf_counter()
     res = evaluator_for(cfg.env, cfg.train.agent, spec.batch).evaluate(run_mod.load_policy(run_dir / name), spec)
-    record = {"policy": name, "policy_env_steps": step, "policy_sha256": fingerprint, "spec": spec_record,
-              "summary": res["summary"],
-              "invalid_episodes": res["invalid_episodes"], "wall_s": time.perf_counter() - t0,
-              "per_episode": {k: np.asarray(v).tolist() for k, v in res["per_episode"].items()}}
+    record = {
+        "policy": name,
+        "policy_env_steps": step,
+        "policy_sha256": fingerprint,
+        "spec": spec_record,
+        "summary": res["summary"],
+        "invalid_episodes": res["invalid_episodes"],
+        "wall_s": time.perf_counter() - t0,
+        "per_episode": {k: np.asarray(v).tolist() for k, v in res["per_episode"].items()},
+    }
     atomic.write_text(path, json.dumps(record) + "\n")  # a killed evaluation leaves no half-written cache
     return res["summary"]
 
@@ -118,8 +129,9 @@ def _read_cache(path: Path) -> dict:
         return {}
 
 
-def expert_job(budget: str, out: Path, episodes: int, shapes: tuple[str, ...], setting: str,
-               log: Callable[[str], None] = print) -> dict[str, dict]:
+def expert_job(
+    budget: str, out: Path, episodes: int, shapes: tuple[str, ...], setting: str, log: Callable[[str], None] = print
+) -> dict[str, dict]:
     """The scripted expert under the budget's action box, per shape: the baseline row of the report
     (it reads the simulator's ground truth, so it bounds what the task allows, not what a policy
     sees). Cached in OUT/expert/ like the agents' evaluations, keyed by the spec and the settings."""
@@ -137,8 +149,17 @@ def expert_job(budget: str, out: Path, episodes: int, shapes: tuple[str, ...], s
             continue
         res = evaluate(ExpertPolicy(cfg), spec)
         path.parent.mkdir(parents=True, exist_ok=True)
-        atomic.write_text(path, json.dumps({**want, "summary": res["summary"], "per_episode": {
-            k: np.asarray(v).tolist() for k, v in res["per_episode"].items()}}) + "\n")
+        atomic.write_text(
+            path,
+            json.dumps(
+                {
+                    **want,
+                    "summary": res["summary"],
+                    "per_episode": {k: np.asarray(v).tolist() for k, v in res["per_episode"].items()},
+                }
+            )
+            + "\n",
+        )
         summaries[shape] = res["summary"]
         log(f"expert {shape}: success {summaries[shape]['success']['mean']:.2f}")
     return summaries
@@ -178,9 +199,11 @@ def agent_job(
     for shape in shapes:
         spec = EvalSpec(setting=setting, shape=shape, episodes=episodes, batch=min(episodes, 20))
         s = summaries[shape] = evaluate_run(cfg, run_dir, spec, log)
-        log(f"{agent} seed {seed} {shape}: success {s['success']['mean']:.2f}, "
+        log(
+            f"{agent} seed {seed} {shape}: success {s['success']['mean']:.2f}, "
             f"reward {s['reward']['mean']:.1f}, overshoot {s['overshoot']['mean']:.2f}, "
-            f"distance {s['distance']['mean']:.2f}")
+            f"distance {s['distance']['mean']:.2f}"
+        )
     return summaries
 
 
@@ -215,16 +238,19 @@ def _log_line(prefix: str, line: str) -> None:
     print(f"{prefix}{line}", flush=True)
 
 
-def plan(budget: str, seeds: int, out: Path, agents: tuple[str, ...] = SCHEDULE,
-         episodes: int | None = None) -> list[str]:
+def plan(
+    budget: str, seeds: int, out: Path, agents: tuple[str, ...] = SCHEDULE, episodes: int | None = None
+) -> list[str]:
     """One shell command per job (each agent and seed: train, then evaluate; the expert's row), then the
     command that builds the report from them. The jobs are independent: run them anywhere that shares
     `out`, in any order, and the report last (or at any time, for the runs finished so far)."""
     ep = f" --episodes {episodes}" if episodes else ""
     base = f"mjx-push reproduce --budget {budget} --out {out}{ep}"
     jobs = [f"{base} --job {agent}:{seed}" for seed in range(seeds) for agent in dict.fromkeys(agents)]
-    return jobs + [f"{base} --job expert", f"{base} --seeds {seeds} --agents {' '.join(dict.fromkeys(agents))} "
-                   "--report-only"]
+    return jobs + [
+        f"{base} --job expert",
+        f"{base} --seeds {seeds} --agents {' '.join(dict.fromkeys(agents))} --report-only",
+    ]
 
 
 def reproduce(
@@ -268,11 +294,19 @@ def reproduce(
     for agent, seed in items:
         # In a worker, `log` (often a rich console) stays behind: lines go to stdout, prefixed.
         job_log = log if jobs == 1 else functools.partial(_log_line, f"[{agent} s{seed}] ")
-        calls.append((("agent", budget, agent, seed, out, episodes, shapes, setting),
-                      {"log": job_log, "config_hook": config_hook, "train": not report_only}))
+        calls.append(
+            (
+                ("agent", budget, agent, seed, out, episodes, shapes, setting),
+                {"log": job_log, "config_hook": config_hook, "train": not report_only},
+            )
+        )
     if expert:  # last: the first worker to finish an agent takes it, beside the last agents
-        calls.append((("expert", budget, out, episodes, shapes, setting),
-                      {"log": log if jobs == 1 else functools.partial(_log_line, "[expert] ")}))
+        calls.append(
+            (
+                ("expert", budget, out, episodes, shapes, setting),
+                {"log": log if jobs == 1 else functools.partial(_log_line, "[expert] ")},
+            )
+        )
     summaries = run_jobs(_job, calls, jobs)
     done = {a for a, _ in items}
     results: dict[str, dict[str, list]] = {a: {s: [] for s in shapes} for a in AGENTS if a in done}
@@ -281,11 +315,19 @@ def reproduce(
             results[agent][shape].append(per_shape[shape])
     if expert:
         results["expert"] = {s: [v] for s, v in summaries[-1].items()}
-    meta = {"budget": budget, "seeds": seeds, "jobs": jobs, "episodes": episodes, "setting": setting, "agents": list(results),
-            "missing_runs": [f"{a}-s{s}" for a, s in missing],
-            "shapes": list(shapes), "wall_s": time.perf_counter() - t0,
-            "machine": f"{platform.machine()}, {__import__('os').cpu_count()} CPU cores, "
-                       f"jax backend {__import__('jax').default_backend()}"}
+    meta = {
+        "budget": budget,
+        "seeds": seeds,
+        "jobs": jobs,
+        "episodes": episodes,
+        "setting": setting,
+        "agents": list(results),
+        "missing_runs": [f"{a}-s{s}" for a, s in missing],
+        "shapes": list(shapes),
+        "wall_s": time.perf_counter() - t0,
+        "machine": f"{platform.machine()}, {__import__('os').cpu_count()} CPU cores, "
+        f"jax backend {__import__('jax').default_backend()}",
+    }
     runs = {a: [run_dir_of(out, a, s) for a2, s in items if a2 == a] for a in results if a in AGENTS}
     path = write_report(out, results, meta, runs)
     (out / "reproduce.json").write_text(json.dumps(meta, indent=2) + "\n")

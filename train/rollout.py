@@ -77,7 +77,10 @@ def make_collect(config: TrainConfig, adapter: EnvAdapter, nets: Networks, actio
         the policy's. The carry advances in every case, so it stays in step with the observations."""
         k_act, k_rand = jnp.swapaxes(jax.vmap(jax.random.split)(keys), 0, 1)
         policy_action, carry = nets.act(
-            actor_params, carry, {"ee_xy": obs["ee_xy"], "z_obj": obs["z_obj"], "z_goal": info["z_goal"]}, k_act,
+            actor_params,
+            carry,
+            {"ee_xy": obs["ee_xy"], "z_obj": obs["z_obj"], "z_goal": info["z_goal"]},
+            k_act,
             deterministic,
         )
         uniform = jax.vmap(lambda k: jax.random.uniform(k, policy_action.shape[1:], minval=-1.0, maxval=1.0))(k_rand)
@@ -97,8 +100,9 @@ def make_collect(config: TrainConfig, adapter: EnvAdapter, nets: Networks, actio
     def lockstep(actor_params, env_state, obs0, info, ks, num_envs, random_actions, deterministic, expert_envs):
         def body(c, k):
             env_state, obs, carry, bad = c
-            action, carry = act(actor_params, carry, obs, info, step_keys(k, num_envs), random_actions,
-                                deterministic, expert_envs)
+            action, carry = act(
+                actor_params, carry, obs, info, step_keys(k, num_envs), random_actions, deterministic, expert_envs
+            )
             env_state, obs, invalid = adapter.step(env_state, action[:, :action_dim])
             return (env_state, obs, carry, bad | invalid), (obs, action)
 
@@ -113,8 +117,9 @@ def make_collect(config: TrainConfig, adapter: EnvAdapter, nets: Networks, actio
         idx = jnp.arange(num_envs)
         keys_at = lambda t: jax.vmap(jax.random.fold_in)(ks[jnp.minimum(t, T - 1)], idx)  # noqa: E731
         t0 = jnp.zeros((num_envs,), jnp.int32)
-        action, carry = act(actor_params, nets.init_carry(num_envs), obs0, info, keys_at(t0),
-                            random_actions, deterministic, expert_envs)
+        action, carry = act(
+            actor_params, nets.init_carry(num_envs), obs0, info, keys_at(t0), random_actions, deterministic, expert_envs
+        )
         env_state = sch.begin(env_state, action[:, :action_dim], jnp.ones((num_envs,), bool))
         obs_buf = jax.tree.map(lambda x: jnp.zeros((num_envs, T) + x.shape[1:], x.dtype), obs0)
         act_buf = jnp.zeros((num_envs, T) + action.shape[1:], action.dtype).at[:, 0].set(action)
@@ -137,8 +142,9 @@ def make_collect(config: TrainConfig, adapter: EnvAdapter, nets: Networks, actio
             bad = bad | (done & invalid)
             t = t + done.astype(jnp.int32)
             more = done & (t < T)
-            action, new_carry = act(actor_params, carry, obs, info, keys_at(t), random_actions,
-                                    deterministic, expert_envs)
+            action, new_carry = act(
+                actor_params, carry, obs, info, keys_at(t), random_actions, deterministic, expert_envs
+            )
             carry = select_envs(more, new_carry, carry)
             env_state = sch.begin(env_state, action[:, :action_dim], more)
             act_buf = put(act_buf, jnp.minimum(t, T - 1), action, more)
@@ -160,8 +166,17 @@ def make_collect(config: TrainConfig, adapter: EnvAdapter, nets: Networks, actio
             env_state, obs0, info = adapter.reset(k_reset, num_envs, episodes)
         run = scheduled if adapter.scheduler is not None else lockstep
         expert_envs = jnp.broadcast_to(expert_envs, (num_envs,))
-        obs_seq, records, bad = run(actor_params, env_state, obs0, info, jax.random.split(k_roll, T), num_envs,
-                                    random_actions, deterministic, expert_envs)
+        obs_seq, records, bad = run(
+            actor_params,
+            env_state,
+            obs0,
+            info,
+            jax.random.split(k_roll, T),
+            num_envs,
+            random_actions,
+            deterministic,
+            expert_envs,
+        )
         actions = records[..., :action_dim]
 
         def with_reset(name):  # [N, T+1, .]: the reset observation first, then the T step observations

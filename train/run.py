@@ -80,15 +80,17 @@ class Checkpoints:
         # process, e.g. a check of the latest step and then a resume, raced to delete the same folder.)
         for leftover in self.directory.glob("*.orbax-checkpoint-tmp*"):
             shutil.rmtree(leftover, ignore_errors=True)
-        options = ocp.CheckpointManagerOptions(max_to_keep=keep, enable_async_checkpointing=False, create=True,
-                                               cleanup_tmp_directories=False)
+        options = ocp.CheckpointManagerOptions(
+            max_to_keep=keep, enable_async_checkpointing=False, create=True, cleanup_tmp_directories=False
+        )
         self.manager = ocp.CheckpointManager(self.directory, options=options)
 
     def save(self, state: TrainState, config: RunConfig, extra: dict) -> int:
         step = int(state.env_steps)
         meta = {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "config": config_dict(config), **extra}
-        self.manager.save(step, args=ocp.args.Composite(state=ocp.args.StandardSave(state),
-                                                        meta=ocp.args.JsonSave(meta)), force=True)
+        self.manager.save(
+            step, args=ocp.args.Composite(state=ocp.args.StandardSave(state), meta=ocp.args.JsonSave(meta)), force=True
+        )
         self.manager.wait_until_finished()
         return step
 
@@ -104,22 +106,31 @@ class Checkpoints:
         try:
             meta = self.manager.restore(step, args=ocp.args.Composite(meta=ocp.args.JsonRestore()))["meta"]
         except Exception as e:
-            raise ConfigError(f"checkpoint {self.directory}/{step} is corrupt (its record cannot be read): {e}") from None
+            raise ConfigError(
+                f"checkpoint {self.directory}/{step} is corrupt (its record cannot be read): {e}"
+            ) from None
         if not isinstance(meta, dict) or meta.get("format") != CHECKPOINT_FORMAT:
             raise ConfigError(f"{self.directory}/{step} is not an mjx-push checkpoint")
         if meta.get("version") != CHECKPOINT_VERSION:
-            raise ConfigError(f"checkpoint {self.directory}/{step} has format version {meta.get('version')}, "
-                             f"this mjx-push reads version {CHECKPOINT_VERSION}")
+            raise ConfigError(
+                f"checkpoint {self.directory}/{step} has format version {meta.get('version')}, "
+                f"this mjx-push reads version {CHECKPOINT_VERSION}"
+            )
         diff = configio.differences(meta.get("config", {}), config_dict(config))
         if diff:
-            raise ConfigError(f"checkpoint {self.directory}/{step} was made with a different configuration: "
-                             + "; ".join(diff[:6]))
+            raise ConfigError(
+                f"checkpoint {self.directory}/{step} was made with a different configuration: " + "; ".join(diff[:6])
+            )
         abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, template)
         try:
-            state = self.manager.restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract)))["state"]
+            state = self.manager.restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract)))[
+                "state"
+            ]
         except Exception as e:
-            raise ConfigError(f"checkpoint {self.directory}/{step} is corrupt or does not match this run's "
-                             f"state (shapes, dtypes or structure): {type(e).__name__}: {str(e)[:300]}") from None
+            raise ConfigError(
+                f"checkpoint {self.directory}/{step} is corrupt or does not match this run's "
+                f"state (shapes, dtypes or structure): {type(e).__name__}: {str(e)[:300]}"
+            ) from None
         return state, meta
 
 
@@ -135,8 +146,9 @@ def save_policy(path: Path, config: RunConfig, actor_params, encoder_params, sco
         "agent": config.agent,
         "config": config_dict(config),
         "scores": scores,
-        "encoder_record": {k: v for k, v in enc.load_record(config.encoder and Path(config.encoder)).items()
-                           if k != "curve"},
+        "encoder_record": {
+            k: v for k, v in enc.load_record(config.encoder and Path(config.encoder)).items() if k != "curve"
+        },
     }
     atomic.write_text(path.with_suffix(".json"), json.dumps(record, indent=2) + "\n")
 
@@ -187,8 +199,9 @@ def load_policy(path: Path) -> Policy:
         except Exception:
             same = False
         if not same:
-            raise ConfigError(f"policy weights {blob_path}: the {name!r} parameters do not match a "
-                             f"{config.agent} network")
+            raise ConfigError(
+                f"policy weights {blob_path}: the {name!r} parameters do not match a {config.agent} network"
+            )
     to_jnp = lambda t: jax.tree.map(jnp.asarray, t)  # noqa: E731
     return Policy(config, to_jnp(blob["actor"]), to_jnp(blob["encoder"]), record.get("scores", {}))
 
@@ -245,8 +258,9 @@ def prepare_dir(run_dir: Path, cfg: RunConfig, resume: bool) -> None:
         _check_same_config(run_dir, cfg)
     else:
         if has_ckpt or (run_dir / "metrics.csv").exists():
-            raise ConfigError(f"run directory {run_dir} already holds a run; pass --resume to continue it or "
-                             "choose another --run-dir")
+            raise ConfigError(
+                f"run directory {run_dir} already holds a run; pass --resume to continue it or choose another --run-dir"
+            )
         run_dir.mkdir(parents=True, exist_ok=True)
         atomic.write_text(run_dir / "config.json", json.dumps(config_dict(cfg), indent=2) + "\n")
 
@@ -276,8 +290,10 @@ def check_not_finished(run_dir: Path, cfg: RunConfig) -> None:
     done = finished_summary(run_dir, cfg)
     if done is not None:
         _check_same_config(run_dir, cfg)  # a different configuration is the more useful message
-        raise RunFinished(f"{run_dir} has finished ({done.get('env_steps', '?')} env steps, summary.json): "
-                          "--resume has nothing to continue; train longer in a new --run-dir.")
+        raise RunFinished(
+            f"{run_dir} has finished ({done.get('env_steps', '?')} env steps, summary.json): "
+            "--resume has nothing to continue; train longer in a new --run-dir."
+        )
 
 
 def run(
@@ -307,9 +323,10 @@ def run(
             raise ConfigError(f"--resume: no checkpoint in {run_dir / 'checkpoints'} ({run_dir} does not exist)")
     else:
         run_dir.mkdir(parents=True, exist_ok=True)
-    with RunLock(run_dir), (StopOnSignal() if stop_on_signal else contextlib.nullcontext()) as stop:
-        return _run_locked(cfg, run_dir, resume, adapter, checkpoint_every, stop_after, on_iteration,
-                           substep_chunk, stop)
+    with RunLock(run_dir), StopOnSignal() if stop_on_signal else contextlib.nullcontext() as stop:
+        return _run_locked(
+            cfg, run_dir, resume, adapter, checkpoint_every, stop_after, on_iteration, substep_chunk, stop
+        )
 
 
 def _run_locked(cfg, run_dir, resume, adapter, checkpoint_every, stop_after, on_iteration, substep_chunk, stop):
@@ -372,10 +389,17 @@ def _run_locked(cfg, run_dir, resume, adapter, checkpoint_every, stop_after, on_
     }
     save_policy(run_dir / "best_policy", cfg, state.best_actor_params, encoder_params, scores)
     last_eval = next((r for r in reversed(log.rows) if r.get("eval/mean_reward") not in (None, "")), {})
-    save_policy(run_dir / "final_policy", cfg, state.sac.actor_params, encoder_params,
-                {"eval_mean_reward": float(last_eval.get("eval/mean_reward", np.nan)),
-                 "eval_success_rate": float(last_eval.get("eval/success_rate", np.nan)),
-                 "env_steps": int(state.env_steps)})
+    save_policy(
+        run_dir / "final_policy",
+        cfg,
+        state.sac.actor_params,
+        encoder_params,
+        {
+            "eval_mean_reward": float(last_eval.get("eval/mean_reward", np.nan)),
+            "eval_success_rate": float(last_eval.get("eval/success_rate", np.nan)),
+            "env_steps": int(state.env_steps),
+        },
+    )
     rows = log.rows
     steady = [float(r["iteration_s"]) for r in rows[1:] if r.get("eval/mean_reward") in (None, "")]
     summary = {

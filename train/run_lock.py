@@ -28,8 +28,10 @@ class RunLock:
         except BlockingIOError:
             holder = os.read(fd, 64).decode(errors="replace").strip() or "unknown"
             os.close(fd)
-            raise ConfigError(f"run directory {self.path.parent} is in use by another mjx-push process "
-                             f"(pid {holder}); wait for it to finish or choose another --run-dir") from None
+            raise ConfigError(
+                f"run directory {self.path.parent} is in use by another mjx-push process "
+                f"(pid {holder}); wait for it to finish or choose another --run-dir"
+            ) from None
         os.ftruncate(fd, 0)
         os.write(fd, f"{os.getpid()}\n".encode())
         self._fd = fd

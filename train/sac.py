@@ -101,8 +101,7 @@ def bc_loss_value(action, expert_action, keep):
     return jnp.mean(keep * jnp.sum((action - expert_action) ** 2, axis=-1))
 
 
-def make_actor_loss(nets: Networks, bc_weight: float = 0.0, q_filter: bool = True,
-                    objective: str = "sac") -> Callable:
+def make_actor_loss(nets: Networks, bc_weight: float = 0.0, q_filter: bool = True, objective: str = "sac") -> Callable:
     """``actor_loss(actor_params, critic_params, alpha, batch, key, demo=None, bc_scale=1.0)``: SAC's
     actor loss plus ``bc_weight * bc_scale`` times the cloning term (``objective`` "sac"), or the
     cloning term alone ("bc"). ``bc_scale`` is the teacher's annealing factor (DemoConfig)."""
@@ -127,7 +126,9 @@ def make_actor_loss(nets: Networks, bc_weight: float = 0.0, q_filter: bool = Tru
             expert = demo.get("expert_action", demo["action"])  # the noise-free label when stored
             if q_filter:  # clone only where the critics prefer the expert's action to the actor's
                 q_e = jnp.min(nets.q(critic_params, demo, _at(demo, 0), expert[:, None]), axis=0)[:, 0]
-                q_a = jnp.min(nets.q(critic_params, demo, _at(demo, 0), jax.lax.stop_gradient(pi)[:, None]), axis=0)[:, 0]
+                q_a = jnp.min(nets.q(critic_params, demo, _at(demo, 0), jax.lax.stop_gradient(pi)[:, None]), axis=0)[
+                    :, 0
+                ]
                 keep = jax.lax.stop_gradient((q_e > q_a).astype(jnp.float32))
             else:
                 keep = jnp.ones(pi.shape[:1])
@@ -195,8 +196,9 @@ def make_update(
         updates, opt_state = opt.update(grads, opt_state, params)
         return optax.apply_updates(params, updates), opt_state
 
-    def update(state: SACState, batch: dict, key: jax.Array, demo: dict | None = None,
-               bc_scale=1.0) -> tuple[SACState, dict]:
+    def update(
+        state: SACState, batch: dict, key: jax.Array, demo: dict | None = None, bc_scale=1.0
+    ) -> tuple[SACState, dict]:
         """One update; ``demo`` is a batch of demonstration steps for the behaviour-cloning term, whose
         weight ``bc_scale`` multiplies (the teacher's annealing)."""
         k_next, k_pi = jax.random.split(key)
