@@ -101,7 +101,10 @@ def test_a_chunk_of_substeps_has_a_trip_count_known_at_compile_time(batch):
     """The scheduler's chunk is a loop of exactly `max_substeps` iterations (a scan: XLA compiles it
     to a while loop with a known trip count), not a loop whose predicate the device must evaluate and
     send to the host after every substep."""
-    state = batch.begin(batch.jit_reset(jax.random.PRNGKey(1)), jnp.zeros((4, 3)), jnp.ones(4, bool))
+    # Shapes only (traced, never run: an eager `begin` dispatches op by op and took minutes).
+    state = jax.eval_shape(
+        lambda k: batch.begin(batch.reset(k), jnp.zeros((4, 3)), jnp.ones(4, bool)), jax.random.PRNGKey(1)
+    )
     eqns = list(_eqns(jax.make_jaxpr(lambda s: batch.advance(s, 7))(state).jaxpr))
     chunks = [e for e in eqns if e.primitive.name == "scan" and e.params["length"] == 7]
     assert len(chunks) == len(batch.envs)  # one per shape group
