@@ -50,46 +50,43 @@ def main() -> None:
         config = dataclasses.replace(config, substeps=(config.substeps[0], args.max_substeps))
     env = BraxPushEnv(config, "box", observation=args.observation, reward=args.reward)
     L = env.episode_length
+    # What both trainers share: the budget, the episode, the batch of environments, the evaluations.
+    common = dict(
+        num_timesteps=args.timesteps,
+        episode_length=L,
+        num_envs=args.num_envs,
+        num_eval_envs=args.num_envs,
+        num_evals=args.evals,
+        discounting=0.95,
+        normalize_observations=True,
+        seed=args.seed,
+    )
     if args.algo == "ppo":
         from brax.training.agents.ppo import train as ppo
 
         train_fn = functools.partial(
             ppo.train,
-            num_timesteps=args.timesteps,
-            episode_length=L,
-            num_envs=args.num_envs,
-            num_eval_envs=args.num_envs,
-            num_evals=args.evals,
+            **common,
             unroll_length=10,
             batch_size=args.num_envs,
             num_minibatches=4,
             num_updates_per_batch=4,
             learning_rate=3e-4,
             entropy_cost=1e-3,
-            discounting=0.95,
-            normalize_observations=True,
             bootstrap_on_timeout=True,
-            seed=args.seed,
         )
     else:
         from brax.training.agents.sac import train as sac
 
         train_fn = functools.partial(
             sac.train,
-            num_timesteps=args.timesteps,
-            episode_length=L,
-            num_envs=args.num_envs,
-            num_eval_envs=args.num_envs,
-            num_evals=args.evals,
+            **common,
             learning_rate=1e-3,
-            discounting=0.95,
             tau=0.05,
             batch_size=256,
             min_replay_size=min(2_000, args.timesteps // 2),
             max_replay_size=args.timesteps,
             grad_updates_per_step=1,
-            normalize_observations=True,
-            seed=args.seed,
         )
 
     rows, t0 = [], time.perf_counter()
