@@ -171,6 +171,18 @@ class Train:
     lr: Annotated[float | None, _preset_arg("X")] = None
     eval_every_env_steps: Annotated[int | None, _preset_arg("N")] = None
     eval_episodes: Annotated[int | None, _preset_arg("N")] = None
+    data_parallel: Annotated[int | None, _preset_arg("N")] = None
+    """devices to spread the run over, data parallel: each steps its share of --num-envs and holds its
+    share of replay, gradients averaged over all (every device of every process when several join)"""
+    coordinator: Annotated[
+        str | None, tyro.conf.arg(metavar="HOST:PORT", help_behavior_hint="(default: one process)")
+    ] = None
+    """process 0's address, to train as one of several processes (jax.distributed; also
+    MJX_PUSH_COORDINATOR; under SLURM or Open MPI JAX finds it itself): see docs/cli.md"""
+    num_processes: Annotated[int | None, tyro.conf.arg(metavar="N", help_behavior_hint="")] = None
+    """processes in a multi-process run (also MJX_PUSH_NUM_PROCESSES)"""
+    process_id: Annotated[int | None, tyro.conf.arg(metavar="I", help_behavior_hint="")] = None
+    """this process's index, 0 to --num-processes - 1 (also MJX_PUSH_PROCESS_ID)"""
     checkpoint_every: int = 10
     """also checkpoint every this many episode batches (always at evaluations and at the end)"""
     success_tau: Annotated[float | None, tyro.conf.arg(metavar="METRES", help_behavior_hint="(default: 0.01)")] = None
@@ -198,6 +210,7 @@ class Train:
         "eval_episodes": "loop.eval_episodes",
         "batch_size": "sac.batch_size",
         "lr": "sac.lr",
+        "data_parallel": "loop.data_parallel",
     }
 
     def config(self):
@@ -238,10 +251,12 @@ class Train:
     def run(self) -> None:
         from rich.console import Console
 
-        from train import run as run_mod
+        from train import data_parallel, run as run_mod
         from train.progress import TrainProgress
 
-        console = Console()
+        # Before anything starts JAX's backend: a multi-process run's devices are all its processes'.
+        data_parallel.initialize(self.coordinator, self.num_processes, self.process_id)
+        console = Console(quiet=not data_parallel.is_primary())  # process 0 speaks for the run
         run_dir = self.run_dir or Path("runs") / f"{self.agent}-{self.preset}-s{self.seed}"
         if self.checkpoint_every < 1:
             raise ConfigError(f"--checkpoint-every must be >= 1, got {self.checkpoint_every}")
@@ -274,7 +289,10 @@ class Train:
         )
         console.print("  the first batch includes JIT compilation (minutes on CPU)")
         try:
-            with TrainProgress(console, loop, enabled=self.progress) as bar, flag_errors(self._flag_names()):
+            with (
+                TrainProgress(console, loop, enabled=self.progress and data_parallel.is_primary()) as bar,
+                flag_errors(self._flag_names()),
+            ):
                 summary, _ = run_mod.run(
                     cfg,
                     run_dir,

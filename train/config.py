@@ -299,9 +299,20 @@ class LoopConfig:
     # (train.evaluate.EvalSpec), so the actor a report scores was not selected on its episodes.
     eval_setting: EvalSetting = "standard"
     eval_seed: int = 2_000_003
+    # Data-parallel devices (over every process of a multi-machine run, train/data_parallel.py): each
+    # steps num_envs / data_parallel environments, holds that share of the replay buffer and samples
+    # that share of every batch; gradients are averaged over all of them. 1: one device learns.
+    data_parallel: int = 1
 
     def __post_init__(self):
         _positive_int("loop.num_envs", self.num_envs)
+        _positive_int("loop.data_parallel", self.data_parallel)
+        _check(
+            self.num_envs % self.data_parallel == 0,
+            "loop.num_envs",
+            f"a multiple of loop.data_parallel ({self.data_parallel})",
+            self.num_envs,
+        )
         _positive_int("loop.episode_len", self.episode_len)
         _positive_int("loop.total_env_steps", self.total_env_steps)
         _check(

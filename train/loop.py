@@ -31,8 +31,9 @@ import flax.struct
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.flatten_util import ravel_pytree
 
-from train import normalizer, replay
+from train import data_parallel, normalizer, replay
 from train.adapter import EnvAdapter
 from train.config import TrainConfig
 from train.networks import Networks, make_networks
@@ -108,6 +109,35 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
             f"got {config.replay.success_tau}"
         )
     T, N = loop.episode_len, loop.num_envs
+    # Data parallel (train/data_parallel.py): these functions are one device's share of the run, N_dev
+    # environments, a replay shard and a shard of every batch, with gradients averaged over `axis`.
+    D = loop.data_parallel
+    axis = data_parallel.AXIS if D > 1 else None
+    N_dev, batch_dev, bc_batch_dev = N // D, sac_cfg.batch_size // D, sac_cfg.bc_batch_size // D
+    replay_cfg = config.replay
+    if D > 1:
+        for name, value in (("sac.batch_size", sac_cfg.batch_size), ("sac.bc_batch_size", sac_cfg.bc_batch_size)):
+            if value % D:
+                raise ConfigError(f"{name} must be a multiple of loop.data_parallel ({D}), got {value}")
+        shard_episodes = config.replay.capacity_transitions // T // D
+        if shard_episodes < N_dev:
+            raise ConfigError(
+                f"replay.capacity_transitions {config.replay.capacity_transitions} over {D} devices holds "
+                f"{shard_episodes} episodes per device, fewer than one batch ({N_dev})"
+            )
+        replay_cfg = dataclasses.replace(config.replay, capacity_transitions=shard_episodes * T)
+
+    def on_device(key):
+        """A key of this device's own (the same key everywhere when not data parallel)."""
+        return key if axis is None else jax.random.fold_in(key, jax.lax.axis_index(axis))
+
+    def everywhere(ok):
+        """True where it holds on every device."""
+        return ok if axis is None else jax.lax.pmin(ok.astype(jnp.int32), axis) > 0
+
+    def total(count):
+        return count if axis is None else jax.lax.psum(count, axis)
+
     agent, demo_cfg = config.agent, config.demo
     if demo_cfg.enabled and adapter.expert is None:
         raise ConfigError("demonstrations (demo.warmup / demo.fraction) need an environment with a scripted expert")
@@ -122,7 +152,9 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
     first_learning_iteration = max(1, -(-loop.warmup_env_steps // loop.env_steps_per_iteration))
     learning_iterations = max(0, loop.num_iterations - first_learning_iteration + 1)
     total_updates = learning_iterations * loop.updates_per_iteration
-    update = make_update(config.agent, sac_cfg, action_dim, total_updates=max(total_updates, 1), nets=nets)
+    update = make_update(
+        config.agent, sac_cfg, action_dim, total_updates=max(total_updates, 1), nets=nets, axis_name=axis
+    )
     # Evaluation always uses the same episodes (docs/task.md section 7), derived from the config's seed.
     eval_key = jax.random.fold_in(jax.random.PRNGKey(loop.seed), 0x5E1EC7)
 
@@ -131,7 +163,7 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
         sac_state = init_state(k_sac, nets, sac_cfg, T, total_updates=max(total_updates, 1))
         return TrainState(
             sac=sac_state,
-            buffer=replay.init(config.replay, T, action_dim, stored_priv_dim, store_labels),
+            buffer=replay.init(replay_cfg, T, action_dim, stored_priv_dim, store_labels),
             key=k_loop,
             env_steps=jnp.zeros((), jnp.int32),
             best_actor_params=jax.tree.map(jnp.copy, sac_state.actor_params),  # no alias (donation)
@@ -147,23 +179,27 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
 
     def run_updates(sac_state, buffer, key, tau, bc_scale):
         def body(s, k):
-            k_sample, k_demo, k_update = jax.random.split(k, 3)
-            batch = replay.sample(buffer, k_sample, sac_cfg.batch_size, success_tau=tau)
+            k_sample, k_demo, k_update = jax.random.split(on_device(k), 3)
+            batch = replay.sample(buffer, k_sample, batch_dev, success_tau=tau)
             demo = (
-                replay.sample(buffer, k_demo, sac_cfg.bc_batch_size, demos_only=not demo_cfg.label_all, relabel=False)
+                replay.sample(buffer, k_demo, bc_batch_dev, demos_only=not demo_cfg.label_all, relabel=False)
                 if bc
                 else None
             )
             return update(s, batch, k_update, demo, bc_scale)
 
         sac_state, metrics = jax.lax.scan(body, sac_state, jax.random.split(key, loop.updates_per_iteration))
-        return sac_state, jax.tree.map(jnp.mean, metrics)
+        metrics = jax.tree.map(jnp.mean, metrics)
+        if axis is not None:  # the devices' means, in one all-reduce per batch (not per update)
+            flat, unravel = ravel_pytree(metrics)
+            metrics = unravel(jax.lax.pmean(flat, axis))
+        return sac_state, metrics
 
     def rollout(actor_params, key, random_actions, deterministic, expert_envs=False, episodes=None):
         """One episode in each of the ``num_envs`` training envs. The flags (and ``episodes``' use
         flag) are traced, so training rollouts, demonstrations and evaluation chunks share one compiled
         function (on CPU the environment's compilation is the largest fixed cost of a run)."""
-        return collect(actor_params, key, N, random_actions, deterministic, expert_envs, episodes)
+        return collect(actor_params, on_device(key), N_dev, random_actions, deterministic, expert_envs, episodes)
 
     def with_norm(sac_state: SACState, stats) -> SACState:
         """The networks' "norm" variables set from the running statistics."""
@@ -182,12 +218,14 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
         """Store a batch of episodes and run this batch's SAC updates (none during warm-up)."""
         buffer = replay.add(ts.buffer, episodes)
         env_steps = ts.env_steps + N * T
-        learn = (env_steps >= loop.warmup_env_steps) & (replay.num_valid_transitions(buffer) >= sac_cfg.batch_size)
+        # Every device must be able to fill its shard of the batch (and of the cloning batch).
+        learn = (env_steps >= loop.warmup_env_steps) & everywhere(replay.num_valid_transitions(buffer) >= batch_dev)
         if bc:
-            learn = learn & (replay.num_demo_episodes(buffer) > 0)
+            learn = learn & everywhere(replay.num_demo_episodes(buffer) > 0)
         norm_stats, sac_state = ts.norm_stats, ts.sac
-        if agent.obs_norm:
-            norm_stats = normalizer.update_stats(norm_stats, episodes, agent.critic_obs)
+        if agent.obs_norm:  # the statistics of every device's episodes, so they stay the same everywhere
+            seen = episodes if axis is None else jax.lax.all_gather(episodes, axis, tiled=True)
+            norm_stats = normalizer.update_stats(norm_stats, seen, agent.critic_obs)
             sac_state = with_norm(sac_state, norm_stats)
         tau = config.replay.reward_tau(jnp.maximum(env_steps - loop.warmup_env_steps, 0).astype(jnp.float32))
         # The teacher's annealing factor on the cloning weight, at this batch's env steps.
@@ -208,8 +246,8 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
             "learning": learn,
             "env_steps": env_steps,
             "updates": sac_state.step,
-            "replay/valid_episodes": replay.num_valid_episodes(buffer),
-            "replay/demo_episodes": replay.num_demo_episodes(buffer),
+            "replay/valid_episodes": total(replay.num_valid_episodes(buffer)),
+            "replay/demo_episodes": total(replay.num_demo_episodes(buffer)),
             "replay/reward_tau": jnp.asarray(tau, jnp.float32),
             "demo/teacher_scale": bc_scale,
         }
@@ -229,8 +267,13 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
         )
         return ts, {**{f"eval/{k}": v for k, v in stats.items()}, "eval/improved": better}
 
+    rollout_mesh = adapter.mesh(N) if adapter.mesh and D == 1 else None
+    if D > 1 and adapter.mesh and adapter.mesh(N_dev) is not None:
+        raise ConfigError(
+            "a data-parallel run steps each device's environments on that device: build the adapter for one device"
+        )
     return Trainer(
-        rollout_mesh=adapter.mesh(N) if adapter.mesh else None,
+        rollout_mesh=rollout_mesh,
         adapter=adapter,
         config=config,
         networks=nets,
@@ -256,6 +299,18 @@ class Runner:
     def __init__(self, trainer: Trainer):
         self.trainer = trainer
         self.adapter = trainer.adapter
+        self._eval_chunks: list | None = None
+        self.devices = trainer.config.loop.data_parallel
+        if self.devices > 1:  # one program over a mesh of devices (and processes): train/data_parallel.py
+            sharded = data_parallel.Sharded(trainer, data_parallel.make_mesh(self.devices))
+            self.init, self.learn, self.select, self._rollout = (
+                sharded.init,
+                sharded.learn,
+                sharded.select,
+                sharded.rollout,
+            )
+            return
+        self.init = trainer.init
         self.learn = jax.jit(trainer.learn, donate_argnums=0)
         self.select = jax.jit(trainer.select, donate_argnums=0)
         rollout = jax.jit(trainer.rollout)
@@ -275,7 +330,6 @@ class Runner:
             learn, select = self.learn, self.select
             self.learn = lambda *args: learn(*jax.device_put(args, home))
             self.select = lambda *args: select(*jax.device_put(args, home))
-        self._eval_chunks: list | None = None
 
     @property
     def shared_episodes(self) -> bool:
@@ -286,10 +340,19 @@ class Runner:
         if self._eval_chunks is None:
             loop = self.trainer.config.loop
             chunks, covered = [], 0
+            D, n = self.devices, loop.num_envs // self.devices
             while covered < loop.eval_episodes:  # until every episode index below eval_episodes is run
-                ep = jax.device_get(
-                    self.adapter.eval_episodes(loop.eval_setting, loop.eval_seed, len(chunks), loop.num_envs)
-                )
+                # Data parallel: each device runs a chunk of its own batch's layout, together chunk c.
+                parts = [
+                    jax.device_get(
+                        self.adapter.eval_episodes(loop.eval_setting, loop.eval_seed, len(chunks) * D + d, n)
+                    )
+                    for d in range(D)
+                ]
+                if D > 1:
+                    fields = [{k: v for k, v in part.items() if k != "use"} for part in parts]
+                    parts = [{**jax.tree.map(lambda *xs: np.concatenate(xs), *fields), "use": np.asarray(True)}]
+                ep = parts[0]
                 covered += int(np.sum(np.asarray(ep["index"]) < loop.eval_episodes))
                 chunks.append(ep)
             self._eval_chunks = chunks
@@ -317,8 +380,9 @@ class Runner:
         if env_steps < cfg.loop.warmup_env_steps:
             return np.full(n, cfg.demo.warmup)
         k = int(round(cfg.demo.fraction * n * cfg.demo.teacher_scale(env_steps)))
-        groups = self.adapter.groups(n) if self.adapter is not None and self.adapter.groups else (n,)
-        return spread_envs(k, tuple(groups))
+        n_dev = n // self.devices  # data parallel: each device spreads its share over its own batch
+        groups = self.adapter.groups(n_dev) if self.adapter is not None and self.adapter.groups else (n_dev,)
+        return np.concatenate([spread_envs(k_d, tuple(groups)) for k_d in data_parallel.split_evenly(k, self.devices)])
 
     def iteration(self, ts: TrainState) -> tuple[TrainState, dict]:
         cfg = self.trainer.config
@@ -406,7 +470,7 @@ def train(
     if runner is None:
         runner = Runner(trainer if trainer is not None else make_train(config, adapter))
     loop = config.loop
-    ts = state if state is not None else runner.trainer.init(key)
+    ts = state if state is not None else runner.init(key)
 
     history: list[dict] = []
     start = int(ts.env_steps) // loop.env_steps_per_iteration

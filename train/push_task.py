@@ -98,10 +98,12 @@ def make_push_adapter(
     encoder_params,
     substep_chunk: int = DEFAULT_SUBSTEP_CHUNK,
     expert_config: expert_mod.ExpertConfig = expert_mod.ExpertConfig(),
+    max_devices: int | None = None,
 ) -> EnvAdapter:
-    """Adapter over `PushBatch(env_config, n)`; one batch object is built per environment count `n`.
-    `substep_chunk` 0 steps all environments in lockstep; both give the same episodes. The adapter's
-    expert is `mjx_push.expert` under `expert_config`."""
+    """Adapter over `PushBatch(env_config, n, max_devices)`; one batch object is built per environment
+    count `n`. `substep_chunk` 0 steps all environments in lockstep; both give the same episodes. The
+    adapter's expert is `mjx_push.expert` under `expert_config`. `max_devices` 1 keeps every batch on
+    one device (a data-parallel run's per-device share)."""
     if not (isinstance(substep_chunk, int) and substep_chunk >= 0):
         raise ConfigError(f"substep_chunk must be an integer >= 0 (0: lockstep), got {substep_chunk!r}")
     batches: dict[int, PushBatch] = {}
@@ -111,7 +113,7 @@ def make_push_adapter(
             # Built on first use, often while a function is being traced: its model and constants must
             # be concrete arrays, not tracers of that one trace, since later traces reuse the batch.
             with jax.ensure_compile_time_eval():
-                batches[n] = PushBatch(env_config, n)
+                batches[n] = PushBatch(env_config, n, max_devices)
         return batches[n]
 
     def is_box(s: BatchState) -> jax.Array:

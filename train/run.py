@@ -35,7 +35,7 @@ import orbax.checkpoint as ocp
 from flax import serialization
 
 from mjx_push import encoder as enc
-from train import atomic, configio
+from train import atomic, configio, data_parallel
 from train.interrupt import StopOnSignal
 from train.run_lock import RunLock
 from train.adapter import EnvAdapter
@@ -116,7 +116,11 @@ class Checkpoints:
                 f"checkpoint {self.directory}/{step} has format version {meta.get('version')}, "
                 f"this mjx-push reads version {CHECKPOINT_VERSION}"
             )
-        diff = configio.differences(meta.get("config", {}), config_dict(config))
+        try:  # read through the schema, so a field added since (with its default) is no difference
+            saved = config_dict(config_from_dict(meta.get("config", {})))
+        except ConfigError:
+            saved = meta.get("config", {})
+        diff = configio.differences(saved, config_dict(config))
         if diff:
             raise ConfigError(
                 f"checkpoint {self.directory}/{step} was made with a different configuration: " + "; ".join(diff[:6])
@@ -210,7 +214,7 @@ def load_policy(path: Path) -> Policy:
 class MetricLog:
     """metrics.csv + TensorBoard. On resume, rows past the checkpoint are dropped (they will be redone)."""
 
-    def __init__(self, root: Path, resume_env_steps: int | None):
+    def __init__(self, root: Path, resume_env_steps: int | None, write: bool = True):
         from tensorboardX import SummaryWriter
 
         self.csv_path = root / "metrics.csv"
@@ -219,12 +223,15 @@ class MetricLog:
             with self.csv_path.open() as f:
                 self.rows = [r for r in csv.DictReader(f) if float(r["env_steps"]) <= resume_env_steps]
         self.columns: list[str] = list(self.rows[0].keys()) if self.rows else []
-        self.tb = SummaryWriter(str(root / "tb"), purge_step=resume_env_steps)
+        # The other processes of a multi-process run keep their rows in memory only (process 0 writes).
+        self.tb = SummaryWriter(str(root / "tb"), purge_step=resume_env_steps) if write else None
 
     def write(self, metrics: dict) -> None:
         new = [k for k in metrics if k not in self.columns]
         self.columns += new
         self.rows.append(metrics)
+        if self.tb is None:
+            return
         # Rewritten whole (columns may grow at evaluations), atomically: a kill mid-write keeps the old log.
         out = io.StringIO(newline="")
         w = csv.DictWriter(out, fieldnames=self.columns)
@@ -238,10 +245,19 @@ class MetricLog:
         self.tb.flush()
 
     def close(self):
-        self.tb.close()
+        if self.tb is not None:
+            self.tb.close()
 
 
 # --- the run -----------------------------------------------------------------------------------------
+def _barrier(name: str) -> None:
+    """Wait for every process of a multi-process run (nothing to wait for in one process)."""
+    if jax.process_count() > 1:
+        from jax.experimental import multihost_utils
+
+        multihost_utils.sync_global_devices(name)
+
+
 def _check_same_config(run_dir: Path, cfg: RunConfig) -> None:
     saved = load_config(run_dir / "config.json")
     diff = configio.differences(config_dict(saved), config_dict(cfg))
@@ -249,7 +265,8 @@ def _check_same_config(run_dir: Path, cfg: RunConfig) -> None:
         raise ConfigError(f"--resume: {run_dir} was started with a different configuration: " + "; ".join(diff[:6]))
 
 
-def prepare_dir(run_dir: Path, cfg: RunConfig, resume: bool) -> None:
+def prepare_dir(run_dir: Path, cfg: RunConfig, resume: bool, write: bool = True) -> None:
+    """Check `run_dir` for a new run or a resume of `cfg`, and (`write`) create it and its config."""
     run_dir = Path(run_dir)
     has_ckpt = any(p.is_dir() and p.name.isdigit() for p in (run_dir / "checkpoints").glob("*"))
     if resume:
@@ -261,8 +278,9 @@ def prepare_dir(run_dir: Path, cfg: RunConfig, resume: bool) -> None:
             raise ConfigError(
                 f"run directory {run_dir} already holds a run; pass --resume to continue it or choose another --run-dir"
             )
-        run_dir.mkdir(parents=True, exist_ok=True)
-        atomic.write_text(run_dir / "config.json", json.dumps(config_dict(cfg), indent=2) + "\n")
+        if write:
+            run_dir.mkdir(parents=True, exist_ok=True)
+            atomic.write_text(run_dir / "config.json", json.dumps(config_dict(cfg), indent=2) + "\n")
 
 
 class RunFinished(ValueError):
@@ -315,38 +333,49 @@ def run(
     part of the run's configuration. `stop_on_signal`: SIGINT / SIGTERM stop the run after the current
     batch with a checkpoint (`train.interrupt`); the summary then holds "interrupted_at_env_steps" and
     "signal". One process at a time may run in a directory (`train.run_lock`); resuming a finished run
-    raises `RunFinished` and changes nothing. Returns (summary, final state)."""
+    raises `RunFinished` and changes nothing. In a multi-process run (`train.data_parallel`) every
+    process calls this with the same arguments and directory (a shared file system); process 0 takes
+    the lock and writes the logs, policies and summary, all write their shards of each checkpoint.
+    Returns (summary, final state)."""
     run_dir = Path(run_dir)
     if resume:
         check_not_finished(run_dir, cfg)
         if not run_dir.is_dir():
             raise ConfigError(f"--resume: no checkpoint in {run_dir / 'checkpoints'} ({run_dir} does not exist)")
-    else:
+    elif data_parallel.is_primary():
         run_dir.mkdir(parents=True, exist_ok=True)
-    with RunLock(run_dir), StopOnSignal() if stop_on_signal else contextlib.nullcontext() as stop:
+    lock = RunLock(run_dir) if data_parallel.is_primary() else contextlib.nullcontext()
+    with lock, StopOnSignal() if stop_on_signal else contextlib.nullcontext() as stop:
         return _run_locked(
             cfg, run_dir, resume, adapter, checkpoint_every, stop_after, on_iteration, substep_chunk, stop
         )
 
 
 def _run_locked(cfg, run_dir, resume, adapter, checkpoint_every, stop_after, on_iteration, substep_chunk, stop):
-    prepare_dir(run_dir, cfg, resume)
+    primary = data_parallel.is_primary()
+    prepare_dir(run_dir, cfg, resume, write=False)  # every process checks before process 0 writes
+    _barrier("checked the run directory")
+    if primary:
+        prepare_dir(run_dir, cfg, resume)
+    _barrier("prepared the run directory")
     encoder_params = enc.load(cfg.encoder and Path(cfg.encoder))
+    loop = cfg.train.loop
     if adapter is None:
         from train.push_task import DEFAULT_SUBSTEP_CHUNK, make_push_adapter
 
         chunk = DEFAULT_SUBSTEP_CHUNK if substep_chunk is None else substep_chunk
-        adapter = make_push_adapter(cfg.env, encoder_params, chunk, cfg.expert)
+        # Data parallel: each device steps its own environments (no split of a batch over devices).
+        max_devices = 1 if loop.data_parallel > 1 else None
+        adapter = make_push_adapter(cfg.env, encoder_params, chunk, cfg.expert, max_devices=max_devices)
     trainer = make_train(cfg.train, adapter)
     runner = Runner(trainer)
-    loop = cfg.train.loop
     ckpts = Checkpoints(run_dir / "checkpoints")
-    state = trainer.init(jax.random.PRNGKey(loop.seed))
+    state = runner.init(jax.random.PRNGKey(loop.seed))
     resumed_from = None
     if resume:
         state, meta = ckpts.restore(state, cfg)
         resumed_from = int(state.env_steps)
-    log = MetricLog(run_dir, resumed_from)
+    log = MetricLog(run_dir, resumed_from, write=primary)
 
     t_start = time.perf_counter()
     clock = {"last": t_start, "first": None, "done": 0}
@@ -361,7 +390,7 @@ def _run_locked(cfg, run_dir, resume, adapter, checkpoint_every, stop_after, on_
         metrics["env_steps_per_s"] = loop.env_steps_per_iteration / dt
         metrics["updates_per_s"] = (loop.updates_per_iteration / dt) if metrics["learning"] else 0.0
         log.write(metrics)
-        if on_iteration is not None:
+        if on_iteration is not None and primary:
             on_iteration(metrics)
         clock["done"] += 1
         i = int(ts.env_steps) // loop.env_steps_per_iteration - 1
@@ -387,6 +416,8 @@ def _run_locked(cfg, run_dir, resume, adapter, checkpoint_every, stop_after, on_
         "best_eval_success_rate": float(state.best_eval_success),
         "best_env_steps": int(state.best_env_steps),
     }
+    if not primary:
+        return {**scores, "env_steps": int(state.env_steps), "run_dir": str(run_dir)}, state
     save_policy(run_dir / "best_policy", cfg, state.best_actor_params, encoder_params, scores)
     last_eval = next((r for r in reversed(log.rows) if r.get("eval/mean_reward") not in (None, "")), {})
     save_policy(

@@ -25,6 +25,7 @@ import flax.struct
 import jax
 import jax.numpy as jnp
 import optax
+from jax.flatten_util import ravel_pytree
 
 from train.config import AgentConfig, SACConfig
 from train.networks import ACTION_DIM, Networks, make_networks
@@ -183,14 +184,27 @@ def make_update(
     action_dim: int = ACTION_DIM,
     total_updates: int | None = None,
     nets: Networks | None = None,
+    axis_name: str | None = None,
 ) -> Callable[[SACState, dict, jax.Array], tuple[SACState, dict]]:
-    """``update(state, batch, key) -> (state, metrics)``, one SAC gradient step (pure, jittable)."""
+    """``update(state, batch, key) -> (state, metrics)``, one SAC gradient step (pure, jittable).
+
+    With ``axis_name`` (data-parallel training, train/data_parallel.py) the gradients are averaged
+    over that mapped axis before they are used, so each device's batch is one shard of the step's batch
+    and every device applies the same step to the same parameters. Two all-reduces per update, each
+    of one flat vector (the critics' gradients; the actor's with the entropy coefficient's), since
+    across processes every collective costs a round trip; the metrics stay per device."""
     nets = nets if nets is not None else make_networks(agent, action_dim)
     opt = make_optimizer(sac, total_updates)
     critic_loss = jax.value_and_grad(make_critic_loss(nets, sac.gamma, sac.target_clip), has_aux=True)
     actor_loss = jax.value_and_grad(make_actor_loss(nets, sac.bc_weight, sac.q_filter, sac.actor_loss), has_aux=True)
     alpha_grad = jax.value_and_grad(alpha_loss)
     target_entropy = sac.resolved_target_entropy(action_dim)
+
+    def mean(tree):
+        if axis_name is None:
+            return tree
+        flat, unravel = ravel_pytree(tree)
+        return unravel(jax.lax.pmean(flat, axis_name))
 
     def step(params, opt_state, grads):
         updates, opt_state = opt.update(grads, opt_state, params)
@@ -207,13 +221,13 @@ def make_update(
         (c_loss, c_aux), c_grads = critic_loss(
             state.critic_params, state.target_critic_params, state.actor_params, alpha, batch, k_next
         )
-        critic_params, critic_opt_state = step(state.critic_params, state.critic_opt_state, c_grads)
+        critic_params, critic_opt_state = step(state.critic_params, state.critic_opt_state, mean(c_grads))
 
         (a_loss, a_aux), a_grads = actor_loss(state.actor_params, critic_params, alpha, batch, k_pi, demo, bc_scale)
         logp = a_aux["logp"]
-        actor_params, actor_opt_state = step(state.actor_params, state.actor_opt_state, a_grads)
-
         al_loss, al_grad = alpha_grad(state.log_alpha, logp, target_entropy)
+        a_grads, al_grad = mean((a_grads, al_grad))
+        actor_params, actor_opt_state = step(state.actor_params, state.actor_opt_state, a_grads)
         log_alpha, alpha_opt_state = step(state.log_alpha, state.alpha_opt_state, al_grad)
 
         new_state = SACState(

@@ -1,0 +1,62 @@
+"""One process of a data-parallel run on localhost, started by tests/test_data_parallel.py (and
+benchmarks/data_parallel.py): joins the run through `jax.distributed` with one CPU device of its own,
+trains through `train.run.run` in a shared run directory, and writes its final actor parameters to
+`RUN_DIR/params-<process id>.npz` and its summary to `RUN_DIR/summary-<process id>.json`.
+
+    python -m tests.distributed_worker PORT PROCESS_ID NUM_PROCESSES RUN_DIR CONFIG_JSON [--stop-after N] [--resume]
+
+CONFIG_JSON is a run configuration (`train.run.config_dict`); `--toy` trains it on the toy task
+(tests/toy.py), otherwise on the MJX pushing scene.
+"""
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+
+import mjx_push
+
+mjx_push.xla.use_cpu_devices(1)  # one CPU device per process: the run's devices are its processes'
+
+import jax  # noqa: E402
+import numpy as np  # noqa: E402
+
+from train import data_parallel, run as run_mod  # noqa: E402
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser()
+    p.add_argument("port", type=int)
+    p.add_argument("process_id", type=int)
+    p.add_argument("num_processes", type=int)
+    p.add_argument("run_dir", type=Path)
+    p.add_argument("config", type=Path)
+    p.add_argument("--toy", action="store_true")
+    p.add_argument("--stop-after", type=int, default=None)
+    p.add_argument("--resume", action="store_true")
+    a = p.parse_args(argv)
+    jax.config.update(
+        "jax_compilation_cache_dir",
+        os.environ.get("MJX_PUSH_TEST_CACHE", os.path.expanduser("~/.cache/mjx_push/jax_tests")),
+    )
+    if os.environ.get("MJX_PUSH_TEST_OPTIMIZE") != "1" and a.toy:  # as tests/conftest.py
+        jax.config.update("jax_disable_most_optimizations", True)
+    data_parallel.initialize(f"localhost:{a.port}", a.num_processes, a.process_id)
+    cfg = run_mod.config_from_dict(json.loads(a.config.read_text()))
+    adapter = None
+    if a.toy:
+        from tests.toy import make_toy
+
+        adapter = make_toy(success_tau=cfg.env.success_tau)
+    summary, state = run_mod.run(cfg, a.run_dir, resume=a.resume, adapter=adapter, stop_after=a.stop_after)
+    leaves = jax.tree.leaves(jax.device_get(state.sac.actor_params))
+    np.savez(a.run_dir / f"params-{a.process_id}.npz", *leaves)
+    summary = {**summary, "devices": jax.device_count(), "processes": jax.process_count()}
+    (a.run_dir / f"summary-{a.process_id}.json").write_text(json.dumps(summary, default=float))
+    jax.distributed.shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,180 @@
+"""Data-parallel training (train/data_parallel.py): the averaged update, the per-device layout of a
+run, its errors, and one run over two processes on localhost (jax.distributed with CPU collectives)."""
+
+import train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
+
+import dataclasses
+import json
+import os
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax.sharding import Mesh, PartitionSpec as P
+
+from mjx_push import xla
+from mjx_push.env import EnvConfig
+from mjx_push.errors import ConfigError
+from tests.test_learner_loop import TAU, toy_config
+from tests.test_learner_sac import KEY
+from tests.toy import make_toy
+from train import data_parallel
+from train.config import AgentConfig, LoopConfig, SACConfig
+from train.loop import Runner, make_train
+from train.presets import RunConfig
+from train.run import config_dict
+from train.networks import make_networks
+from train.sac import init_state, make_update
+
+ROOT = Path(__file__).resolve().parents[1]
+two_devices = pytest.mark.skipif(len(jax.devices()) < 2, reason="needs 2 CPU host devices (a machine with 2 cores)")
+
+
+@two_devices
+def test_the_update_over_two_devices_averages_the_devices_gradients():
+    """Each device takes its half of the batch and both apply the averaged step: identical parameters on
+    both, the single-device step when both halves are the same, and neither half's own step when they
+    differ (a device stepping on its own half alone would end there)."""
+    agent, cfg, T = AgentConfig("vpm", hidden=(32, 32)), SACConfig(batch_size=8), 5
+    nets = make_networks(agent)
+    state = init_state(jax.random.PRNGKey(0), nets, cfg, T)
+    k = jax.random.split(jax.random.PRNGKey(1), 6)
+    batch = {
+        "ee_xy": jax.random.normal(k[0], (8, T + 1, 2)),
+        "z_obj": jax.random.normal(k[1], (8, T + 1, 6)),
+        "z_goal": jax.random.normal(k[2], (8, 6)),
+        "t": jax.random.randint(k[3], (8,), 0, T),
+        "action": jax.random.uniform(k[4], (8, 3), minval=-1, maxval=1),
+        "reward": -(jax.random.uniform(k[5], (8,)) < 0.5).astype(jnp.float32),
+    }
+    half = lambda b, i: jax.tree.map(lambda x: x[4 * i : 4 * i + 4], b)  # noqa: E731
+    single = jax.jit(make_update(agent, cfg, nets=nets))
+    mesh = Mesh(np.array(jax.devices()[:2]), (data_parallel.AXIS,))
+    update = make_update(agent, cfg, nets=nets, axis_name=data_parallel.AXIS)
+    # Each device's resulting parameters, stacked over a leading device axis.
+    sharded = jax.jit(
+        jax.shard_map(
+            lambda s, b: jax.tree.map(lambda x: x[None], update(s, b, KEY)[0].actor_params),
+            mesh=mesh,
+            in_specs=(P(), P(data_parallel.AXIS)),
+            out_specs=P(data_parallel.AXIS),
+            check_vma=False,
+        )
+    )
+    leaves = lambda tree: np.concatenate([np.ravel(x) for x in jax.tree.leaves(tree)])  # noqa: E731
+    both = sharded(state, batch)
+    np.testing.assert_array_equal(
+        leaves(jax.tree.map(lambda x: x[0], both)), leaves(jax.tree.map(lambda x: x[1], both))
+    )
+    same = sharded(state, jax.tree.map(lambda x: jnp.concatenate([x, x]), half(batch, 0)))
+    alone = [leaves(single(state, half(batch, i), KEY)[0].actor_params) for i in range(2)]
+    np.testing.assert_allclose(leaves(jax.tree.map(lambda x: x[0], same)), alone[0], rtol=1e-5, atol=1e-7)
+    averaged = leaves(jax.tree.map(lambda x: x[0], both))
+    before = leaves(state.actor_params)
+    for own in alone:  # each half's own step moves some parameter differently from the averaged one
+        assert np.abs((averaged - before) - (own - before)).max() > 1e-4
+
+
+def test_a_data_parallel_run_checks_its_shapes_and_devices():
+    with pytest.raises(ConfigError, match="loop.num_envs.*multiple of loop.data_parallel"):
+        LoopConfig(num_envs=6, data_parallel=4)
+    with pytest.raises(ConfigError, match="sac.batch_size must be a multiple of loop.data_parallel"):
+        make_train(
+            dataclasses.replace(
+                toy_config("vpm", 800, batch_size=127), loop=LoopConfig(num_envs=8, episode_len=10, data_parallel=2)
+            ),
+            make_toy(success_tau=TAU),
+        )
+    many = toy_config("vpm", 800, data_parallel=8)
+    with pytest.raises(ConfigError, match=f"loop.data_parallel is 8 but this run has {len(jax.devices())} device"):
+        Runner(make_train(many, make_toy(success_tau=TAU)))
+
+
+@two_devices
+def test_each_device_holds_its_share_and_the_expert_demonstrates_on_every_device():
+    cfg = dataclasses.replace(
+        toy_config("vpm", 800, data_parallel=2), demo=dataclasses.replace(toy_config("vpm", 800).demo, fraction=0.25)
+    )
+    runner = Runner(make_train(cfg, make_toy(success_tau=TAU)))
+    ts = runner.init(jax.random.PRNGKey(0))
+    buffer = jax.tree.leaves(ts.buffer.data)[0]
+    assert buffer.shape[0] == 2 and buffer.sharding.spec == P(data_parallel.AXIS)
+    assert buffer.shape[1] == 20_000 // 10 // 2  # half of the capacity's episodes on each device
+    mask = runner.expert_envs(10_000)  # after the warm-up: 2 of 8 environments, one per device
+    assert mask.sum() == 2 and mask[:4].sum() == 1 and mask[4:].sum() == 1
+    eps, stats = runner.rollout(ts.sac.actor_params, jax.random.PRNGKey(1), jnp.asarray(False), jnp.asarray(True), mask)
+    assert eps["valid"].shape[0] == 8 and eps["valid"].sharding.spec == P(data_parallel.AXIS)
+    assert isinstance(stats["episode_success"], np.ndarray) and stats["episode_success"].shape == (8,)
+    # The two devices' environments are different episodes (each device has a key of its own).
+    goals = np.asarray(eps["goal_xy"])
+    assert not np.allclose(goals[:4], goals[4:])
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("localhost", 0))
+        return s.getsockname()[1]
+
+
+def worker_env() -> dict:
+    """This environment without its host-device count: each worker asks for one CPU device."""
+    flags = [f for f in os.environ.get("XLA_FLAGS", "").split() if not f.startswith(xla.DEVICE_FLAG)]
+    return {**os.environ, "XLA_FLAGS": " ".join(flags)}
+
+
+def _two_processes(run_dir: Path, config: Path, *extra: str) -> None:
+    port = _free_port()
+    cmd = [sys.executable, "-m", "tests.distributed_worker", str(port), "{i}", "2", str(run_dir), str(config), "--toy"]
+    procs = [
+        subprocess.Popen(
+            [c.format(i=i) for c in cmd] + list(extra),
+            cwd=ROOT,
+            env=worker_env(),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        for i in range(2)
+    ]
+    outs = [p.communicate(timeout=900)[0] for p in procs]
+    for i, (p, out) in enumerate(zip(procs, outs)):
+        assert p.returncode == 0, f"process {i} failed:\n{out[-3000:]}"
+
+
+def test_two_processes_train_one_run_resume_it_and_learn_the_toy_task(tmp_path):
+    """Two processes on localhost, one CPU device each, train the toy task of the single-device
+    learning test (tests/test_learner_loop.py: 8 environments, 1,600 env steps, >= 90 % success)
+    as one run: stopped after 12 batches (as if killed), resumed from the checkpoint of batch 10,
+    finished. Both end with the same
+    parameters, only process 0 wrote the logs and policies, and the task is learned as well."""
+    cfg = RunConfig(
+        agent="vpm",
+        preset="smoke",
+        train=toy_config("vpm", 1600, data_parallel=2),
+        env=EnvConfig(episode_length=10, success_tau=TAU),
+        encoder=None,
+    )
+    config = tmp_path / "config-in.json"
+    config.write_text(json.dumps(config_dict(cfg)))
+    run_dir = tmp_path / "run"
+    _two_processes(run_dir, config, "--stop-after", "12")
+    first = [json.loads((run_dir / f"summary-{i}.json").read_text()) for i in range(2)]
+    assert all(s["stopped_at_env_steps"] == 12 * 80 for s in first), first
+    assert sorted(p.name for p in (run_dir / "checkpoints").iterdir() if p.name.isdigit()) == ["800"]
+    _two_processes(run_dir, config, "--resume")
+    a, b = (np.load(run_dir / f"params-{i}.npz") for i in range(2))
+    assert a.files and all(np.array_equal(a[k], b[k]) for k in a.files)
+    summaries = [json.loads((run_dir / f"summary-{i}.json").read_text()) for i in range(2)]
+    assert all(s["devices"] == 2 and s["processes"] == 2 for s in summaries)
+    main = summaries[0]
+    assert main["resumed_from_env_steps"] == 800 and main["env_steps"] == 1600
+    assert main["best_eval_success_rate"] >= 0.9, main
+    assert summaries[1]["best_eval_success_rate"] == main["best_eval_success_rate"]
+    assert (run_dir / "best_policy.msgpack").is_file() and (run_dir / "summary.json").is_file()
+    rows = (run_dir / "metrics.csv").read_text().splitlines()
+    assert len(rows) == 1 + 20  # one header, one row per batch, written once
