@@ -80,6 +80,13 @@ def test_the_update_over_two_devices_averages_the_devices_gradients():
         assert np.abs((averaged - before) - (own - before)).max() > 1e-4
 
 
+def test_without_a_coordinator_the_run_is_one_process(monkeypatch):
+    for name in ("MJX_PUSH_COORDINATOR", "MJX_PUSH_NUM_PROCESSES", "MJX_PUSH_PROCESS_ID"):
+        monkeypatch.delenv(name, raising=False)
+    data_parallel.initialize()
+    assert jax.process_count() == 1 and data_parallel.is_primary()
+
+
 def test_a_data_parallel_run_checks_its_shapes_and_devices():
     with pytest.raises(ConfigError, match="loop.num_envs.*multiple of loop.data_parallel"):
         LoopConfig(num_envs=6, data_parallel=4)
@@ -90,6 +97,10 @@ def test_a_data_parallel_run_checks_its_shapes_and_devices():
             ),
             make_toy(success_tau=TAU),
         )
+    with pytest.raises(ConfigError, match="process id 2 is not one of 2 processes"):
+        data_parallel.initialize("localhost:1", 2, 2)
+    with pytest.raises(ConfigError, match="--coordinator auto takes the process count"):
+        data_parallel.initialize("auto", 2, 0)
     many = toy_config("vpm", 800, data_parallel=8)
     with pytest.raises(ConfigError, match=f"loop.data_parallel is 8 but this run has {len(jax.devices())} device"):
         Runner(make_train(many, make_toy(success_tau=TAU)))

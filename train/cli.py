@@ -178,7 +178,8 @@ class Train:
         str | None, tyro.conf.arg(metavar="HOST:PORT", help_behavior_hint="(default: one process)")
     ] = None
     """process 0's address, to train as one of several processes (jax.distributed; also
-    MJX_PUSH_COORDINATOR; under SLURM or Open MPI JAX finds it itself): see docs/cli.md"""
+    MJX_PUSH_COORDINATOR); auto: JAX finds it and the two below in SLURM, Open MPI or Kubernetes
+    (docs/scaling.md)"""
     num_processes: Annotated[int | None, tyro.conf.arg(metavar="N", help_behavior_hint="")] = None
     """processes in a multi-process run (also MJX_PUSH_NUM_PROCESSES)"""
     process_id: Annotated[int | None, tyro.conf.arg(metavar="I", help_behavior_hint="")] = None

@@ -34,10 +34,15 @@ AXIS = "data"
 
 def initialize(coordinator: str | None = None, num_processes: int | None = None, process_id: int | None = None):
     """Join a multi-process run (``jax.distributed.initialize``) before any computation. Arguments left
-    None come from ``MJX_PUSH_COORDINATOR`` / ``MJX_PUSH_NUM_PROCESSES`` / ``MJX_PUSH_PROCESS_ID``, and
-    where those are unset too from what JAX detects (SLURM, Open MPI, Kubernetes' JobSet, ...). Nothing
-    happens when neither a coordinator nor a cluster is given."""
+    None come from ``MJX_PUSH_COORDINATOR`` / ``MJX_PUSH_NUM_PROCESSES`` / ``MJX_PUSH_PROCESS_ID``.
+    The coordinator ``auto`` leaves all three to JAX's detection of the cluster it runs in (SLURM, Open
+    MPI, Kubernetes, ...). Nothing happens when none is given: one process."""
     coordinator = coordinator or os.environ.get("MJX_PUSH_COORDINATOR")
+    if coordinator == "auto":
+        if num_processes is not None or process_id is not None:
+            raise ConfigError("--coordinator auto takes the process count and id from the cluster: drop them")
+        jax.distributed.initialize()
+        return
     env_int = lambda name: int(os.environ[name]) if os.environ.get(name) else None  # noqa: E731
     num_processes = num_processes if num_processes is not None else env_int("MJX_PUSH_NUM_PROCESSES")
     process_id = process_id if process_id is not None else env_int("MJX_PUSH_PROCESS_ID")
