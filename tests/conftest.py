@@ -84,3 +84,28 @@ def tiny_egru_run(tmp_path_factory, encoder_file):
     d = tmp_path_factory.mktemp("egru")
     summary, state = run_mod.run(cfg, d)
     return cfg, d, summary, state
+
+
+@pytest.fixture(scope="session")
+def real_update():
+    """(agent, SAC config, initial SACState, a batch of 8 random transitions) of a small VPM: the
+    update tests of train/sac.py and of its data-parallel use share it."""
+    import jax.numpy as jnp
+
+    from train.config import AgentConfig, SACConfig
+    from train.networks import make_networks
+    from train.sac import init_state
+
+    agent, cfg, T = AgentConfig("vpm", hidden=(32, 32)), SACConfig(batch_size=8), 5
+    nets = make_networks(agent)
+    state = init_state(jax.random.PRNGKey(0), nets, cfg, T)
+    k = jax.random.split(jax.random.PRNGKey(1), 4)
+    batch = {
+        "ee_xy": jax.random.normal(k[0], (8, T + 1, 2)),
+        "z_obj": jax.random.normal(k[1], (8, T + 1, 6)),
+        "z_goal": jax.random.normal(k[2], (8, 6)),
+        "t": jax.random.randint(k[3], (8,), 0, T),
+        "action": jnp.zeros((8, 3)),
+        "reward": -jnp.ones((8,)),
+    }
+    return agent, cfg, state, batch

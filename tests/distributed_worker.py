@@ -1,6 +1,5 @@
-"""One process of a data-parallel run on localhost, started by tests/test_data_parallel.py (and
-benchmarks/data_parallel.py): joins the run through `jax.distributed` with one CPU device of its own,
-trains through `train.run.run` in a shared run directory, and writes its final actor parameters to
+"""One process of a data-parallel run on localhost, started by tests/test_data_parallel.py: joins the
+run through `jax.distributed` with one CPU device of its own, trains through `train.run.run` in a shared run directory, and writes its final actor parameters to
 `RUN_DIR/params-<process id>.npz` and its summary to `RUN_DIR/summary-<process id>.json`.
 
     python -m tests.distributed_worker PORT PROCESS_ID NUM_PROCESSES RUN_DIR CONFIG_JSON [--stop-after N] [--resume]

@@ -24,34 +24,24 @@ from tests.test_learner_loop import TAU, toy_config
 from tests.test_learner_sac import KEY
 from tests.toy import make_toy
 from train import data_parallel
-from train.config import AgentConfig, LoopConfig, SACConfig
+from train.config import LoopConfig
 from train.loop import Runner, make_train
 from train.presets import RunConfig
 from train.run import config_dict
 from train.networks import make_networks
-from train.sac import init_state, make_update
+from train.sac import make_update
 
 ROOT = Path(__file__).resolve().parents[1]
 two_devices = pytest.mark.skipif(len(jax.devices()) < 2, reason="needs 2 CPU host devices (a machine with 2 cores)")
 
 
 @two_devices
-def test_the_update_over_two_devices_averages_the_devices_gradients():
+def test_the_update_over_two_devices_averages_the_devices_gradients(real_update):
     """Each device takes its half of the batch and both apply the averaged step: identical parameters on
     both, the single-device step when both halves are the same, and neither half's own step when they
     differ (a device stepping on its own half alone would end there)."""
-    agent, cfg, T = AgentConfig("vpm", hidden=(32, 32)), SACConfig(batch_size=8), 5
+    agent, cfg, state, batch = real_update
     nets = make_networks(agent)
-    state = init_state(jax.random.PRNGKey(0), nets, cfg, T)
-    k = jax.random.split(jax.random.PRNGKey(1), 6)
-    batch = {
-        "ee_xy": jax.random.normal(k[0], (8, T + 1, 2)),
-        "z_obj": jax.random.normal(k[1], (8, T + 1, 6)),
-        "z_goal": jax.random.normal(k[2], (8, 6)),
-        "t": jax.random.randint(k[3], (8,), 0, T),
-        "action": jax.random.uniform(k[4], (8, 3), minval=-1, maxval=1),
-        "reward": -(jax.random.uniform(k[5], (8,)) < 0.5).astype(jnp.float32),
-    }
     half = lambda b, i: jax.tree.map(lambda x: x[4 * i : 4 * i + 4], b)  # noqa: E731
     single = jax.jit(make_update(agent, cfg, nets=nets))
     mesh = Mesh(np.array(jax.devices()[:2]), (data_parallel.AXIS,))

@@ -167,23 +167,6 @@ def test_update_with_stub_networks():
     assert int(new.step) == 1
 
 
-@pytest.fixture(scope="module")
-def real_update():
-    agent, cfg, T = AgentConfig("vpm", hidden=(32, 32)), SACConfig(batch_size=8), 5
-    nets = make_networks(agent)
-    state = init_state(jax.random.PRNGKey(0), nets, cfg, T)
-    k = jax.random.split(jax.random.PRNGKey(1), 4)
-    batch = {
-        "ee_xy": jax.random.normal(k[0], (8, T + 1, 2)),
-        "z_obj": jax.random.normal(k[1], (8, T + 1, 6)),
-        "z_goal": jax.random.normal(k[2], (8, 6)),
-        "t": jax.random.randint(k[3], (8,), 0, T),
-        "action": jnp.zeros((8, 3)),
-        "reward": -jnp.ones((8,)),
-    }
-    return agent, cfg, state, batch
-
-
 def test_update_with_real_networks(real_update):
     agent, cfg, state, batch = real_update
     new, m = jax.jit(make_update(agent, cfg))(state, batch, KEY)

@@ -25,6 +25,7 @@ import os
 
 import jax
 import numpy as np
+from jax.flatten_util import ravel_pytree
 from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 
 from mjx_push.errors import ConfigError
@@ -113,9 +114,9 @@ def _global(ts):
     return ts.replace(buffer=jax.tree.map(lambda x: x[None], ts.buffer))
 
 
-def episode_specs(episodes: dict | None):
+def episode_specs(episodes: dict) -> dict:
     """Evaluation episodes: the ``use`` flag replicated, every per-environment field split."""
-    return None if episodes is None else {k: P() if k == "use" else P(AXIS) for k in episodes}
+    return {k: P() if k == "use" else P(AXIS) for k in episodes}
 
 
 class Sharded:
@@ -138,12 +139,12 @@ class Sharded:
             trainer.select, donate_argnums=0, out_shardings=(self.state_shardings, NamedSharding(mesh, P()))
         )
 
-        def rollout(params, key, random_actions, deterministic, expert_envs, episodes):
-            eps, stats = trainer.rollout(params, key, random_actions, deterministic, expert_envs, episodes)
+        def rollout(params, key, random_actions, deterministic, expert_envs, *episodes):
+            eps, stats = trainer.rollout(params, key, random_actions, deterministic, expert_envs, *episodes)
             return eps, jax.lax.all_gather(stats, AXIS, tiled=True)
 
-        self._rollouts: dict = {}
-        self._rollout_fn = rollout
+        self._rollouts: dict = {}  # compiled on first use, with and without evaluation episodes
+        self._smap, self._rollout_fn = smap, rollout
 
     def init(self, key):
         return self._init(put(key, self.mesh, P()))
@@ -156,31 +157,19 @@ class Sharded:
 
     def rollout(self, params, key, random_actions, deterministic, expert_envs, episodes=None):
         """-> (episodes split over the mesh, per-episode statistics as NumPy arrays in batch order)."""
-        spec = episode_specs(episodes)
-        signature = None if spec is None else tuple(sorted(spec))
-        if signature not in self._rollouts:
-            in_specs = (P(), P(), P(), P(), P(AXIS), spec)
-            fn = self._rollout_fn if episodes is not None else lambda *a: self._rollout_fn(*a, None)
-            self._rollouts[signature] = jax.jit(
-                jax.shard_map(
-                    fn,
-                    mesh=self.mesh,
-                    in_specs=in_specs if episodes is not None else in_specs[:-1],
-                    out_specs=(P(AXIS), P()),
-                    check_vma=False,
-                )
-            )
-        args = [
-            put(params, self.mesh, P()),
-            put(key, self.mesh, P()),
-            put(random_actions, self.mesh, P()),
-            put(deterministic, self.mesh, P()),
-            put(expert_envs, self.mesh, P(AXIS)),
-        ]
-        if episodes is not None:
-            args.append(put(episodes, self.mesh, spec))
-        eps, stats = self._rollouts[signature](*args)
+        args = (params, key, random_actions, deterministic, expert_envs) + (() if episodes is None else (episodes,))
+        specs = (P(), P(), P(), P(), P(AXIS)) + (() if episodes is None else (episode_specs(episodes),))
+        if len(args) not in self._rollouts:  # with and without evaluation episodes
+            self._rollouts[len(args)] = jax.jit(self._smap(self._rollout_fn, specs, (P(AXIS), P())))
+        eps, stats = self._rollouts[len(args)](*(put(x, self.mesh, spec) for x, spec in zip(args, specs)))
         return eps, jax.device_get(stats)
+
+
+def flat_pmean(tree, axis: str):
+    """The mean of ``tree`` over the mapped ``axis`` in one all-reduce of one flat vector (across
+    processes every collective is a round trip, so a pytree's leaves go together)."""
+    flat, unravel = ravel_pytree(tree)
+    return unravel(jax.lax.pmean(flat, axis))
 
 
 def split_evenly(k: int, parts: int) -> list[int]:

@@ -31,7 +31,6 @@ import flax.struct
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.flatten_util import ravel_pytree
 
 from train import data_parallel, normalizer, replay
 from train.adapter import EnvAdapter
@@ -190,9 +189,8 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
 
         sac_state, metrics = jax.lax.scan(body, sac_state, jax.random.split(key, loop.updates_per_iteration))
         metrics = jax.tree.map(jnp.mean, metrics)
-        if axis is not None:  # the devices' means, in one all-reduce per batch (not per update)
-            flat, unravel = ravel_pytree(metrics)
-            metrics = unravel(jax.lax.pmean(flat, axis))
+        if axis is not None:  # the devices' means, once per batch (not per update)
+            metrics = data_parallel.flat_pmean(metrics, axis)
         return sac_state, metrics
 
     def rollout(actor_params, key, random_actions, deterministic, expert_envs=False, episodes=None):

@@ -353,10 +353,9 @@ def run(
 
 def _run_locked(cfg, run_dir, resume, adapter, checkpoint_every, stop_after, on_iteration, substep_chunk, stop):
     primary = data_parallel.is_primary()
-    prepare_dir(run_dir, cfg, resume, write=False)  # every process checks before process 0 writes
-    _barrier("checked the run directory")
-    if primary:
-        prepare_dir(run_dir, cfg, resume)
+    # Every process checks (what process 0 writes here, the config, none of the checks reads); the
+    # others wait for the directory before they open its checkpoints.
+    prepare_dir(run_dir, cfg, resume, write=primary)
     _barrier("prepared the run directory")
     encoder_params = enc.load(cfg.encoder and Path(cfg.encoder))
     loop = cfg.train.loop

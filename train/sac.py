@@ -25,9 +25,9 @@ import flax.struct
 import jax
 import jax.numpy as jnp
 import optax
-from jax.flatten_util import ravel_pytree
 
 from train.config import AgentConfig, SACConfig
+from train.data_parallel import flat_pmean
 from train.networks import ACTION_DIM, Networks, make_networks
 from mjx_push.errors import ConfigError
 
@@ -201,10 +201,7 @@ def make_update(
     target_entropy = sac.resolved_target_entropy(action_dim)
 
     def mean(tree):
-        if axis_name is None:
-            return tree
-        flat, unravel = ravel_pytree(tree)
-        return unravel(jax.lax.pmean(flat, axis_name))
+        return tree if axis_name is None else flat_pmean(tree, axis_name)
 
     def step(params, opt_state, grads):
         updates, opt_state = opt.update(grads, opt_state, params)
