@@ -1,7 +1,7 @@
 """What SAC+HER adds to cloning: three learners on one budget, each a config field, side by side.
 
     python -m benchmarks.learners [--rung egru-1cm] [--seeds 1 2] [--total-env-steps 28800]
-        [--anneal 9600 22400] [--episodes 100] [--out outputs/learners]
+        [--anneal 9600 22400] [--anchor-weight 2] [--episodes 100] [--out outputs/learners]
 
 The learners (every other setting is the rung's preset):
 
@@ -10,7 +10,10 @@ The learners (every other setting is the rung's preset):
 - ``sacbc``: SAC+HER with the cloning term (the presets' learner);
 - ``anneal``: SAC+HER with the teacher annealed away (``train.demo.anneal_start/anneal_end``): the
   cloning weight and the expert's share of environments fall linearly to 0, and the last stretch of
-  training is the agent's own.
+  training is the agent's own;
+- ``anchor``: as ``anneal``, and the actor held to its own copy of ``anneal_start`` as the teacher
+  goes (``train.sac.anchor_weight``): the cloning term's weight passes to the distance from that copy,
+  so what was cloned is kept while the critic, not the expert, moves the actor.
 
 Each run trains through `benchmarks.learning_ladder` (in ``OUT/<rung>-<learner>-s<seed>/``, resumable:
 rerunning continues interrupted runs and reuses finished ones). Then its best actor (selected on the
@@ -39,14 +42,16 @@ from rich.table import Table
 from benchmarks import learning_ladder as ladder
 from train import atomic
 
-LEARNERS = ("bc", "sacbc", "anneal")
+LEARNERS = ("bc", "sacbc", "anneal", "anchor")
 
 
-def learner_overrides(learner: str, anneal: tuple[int, int]) -> list[str]:
+def learner_overrides(learner: str, anneal: tuple[int, int], anchor_weight: float = 2.0) -> list[str]:
+    annealed = [f"train.demo.anneal_start={anneal[0]}", f"train.demo.anneal_end={anneal[1]}"]
     return {
         "bc": ['train.sac.actor_loss="bc"'],
         "sacbc": [],
-        "anneal": [f"train.demo.anneal_start={anneal[0]}", f"train.demo.anneal_end={anneal[1]}"],
+        "anneal": annealed,
+        "anchor": [*annealed, f"train.sac.anchor_weight={anchor_weight}"],
     }[learner]
 
 
@@ -78,6 +83,7 @@ def main(argv=None):
         metavar=("START", "END"),
         help="env steps over which the annealed learner's teacher falls to 0",
     )
+    ap.add_argument("--anchor-weight", type=float, default=2.0, help="the anchored learner's train.sac.anchor_weight")
     ap.add_argument("--episodes", type=int, default=100, help="test episodes per actor and setting")
     ap.add_argument("--no-train", action="store_true", help="score the finished runs only")
     ap.add_argument("--out", type=Path, default=Path("outputs/learners"))
@@ -105,8 +111,8 @@ def main(argv=None):
                         learner,
                     ]
                     + (
-                        ["--set", *learner_overrides(learner, args.anneal)]
-                        if learner_overrides(learner, args.anneal)
+                        ["--set", *overrides]
+                        if (overrides := learner_overrides(learner, args.anneal, args.anchor_weight))
                         else []
                     )
                 )
@@ -180,6 +186,7 @@ def main(argv=None):
                 "rung": args.rung,
                 "total_env_steps": args.total_env_steps,
                 "anneal": args.anneal,
+                "anchor_weight": args.anchor_weight,
                 "episodes": args.episodes,
                 "runs": rows,
             },

@@ -104,6 +104,11 @@ def _annealed(sac=None, warmup=True, fraction=0.25, **demo):
             ),
             r"demo\.anneal_start must be None with sac\.actor_loss 'bc'",
         ),
+        (lambda: SACConfig(anchor_weight=-2.0), r"sac\.anchor_weight must be a finite number >= 0"),
+        (
+            lambda: _annealed(sac=SACConfig(bc_weight=1.0, anchor_weight=2.0)),
+            r"sac\.anchor_weight must be 0 unless the teacher is annealed",
+        ),
         (lambda: LoopConfig(eval_setting="custom"), r"loop\.eval_setting must be one of \('standard', 'difficult'\)"),
         (lambda: LoopConfig(eval_seed=1.5), r"loop\.eval_seed must be an int"),
         (

@@ -140,6 +140,22 @@ def test_behaviour_cloning_is_q_filtered():
     np.testing.assert_allclose(bc_loss_value(jnp.zeros((2, 2)), jnp.ones((2, 2)), jnp.array([1.0, 0.0])), 1.0)
 
 
+def test_the_anchor_takes_the_cloning_weight_as_the_teacher_goes():
+    batch = {"t": jnp.zeros(2, jnp.int32), "target": jnp.zeros((2, 2))}
+    params, anchor = {"a": jnp.array([0.5, 0.0])}, {"a": jnp.array([0.0, 1.0])}
+    loss_fn = jax.value_and_grad(make_actor_loss(LinearNets(), anchor_weight=2.0), has_aux=True)
+    key = jax.random.PRNGKey(0)
+    (plain, _), _ = loss_fn(params, None, 0.0, batch, key)
+    drift = 0.25 + 1.0  # |(0.5, 0) - (0, 1)|^2
+    for scale in (1.0, 0.25, 0.0):
+        (loss, aux), grads = loss_fn(params, None, 0.0, batch, key, None, scale, anchor)
+        np.testing.assert_allclose(aux["anchor_drift"], drift)
+        np.testing.assert_allclose(loss - plain, 2.0 * (1.0 - scale) * drift, rtol=1e-6)
+    # At scale 0 the whole weight holds the actor: the gradient points away from the anchor (Q's own
+    # gradient at target 0 is 2 * a = (1, 0); the anchor's 2 * 2 * (a - anchor) = (2, -4)).
+    np.testing.assert_allclose(grads["a"], [1.0 + 2.0, -4.0], rtol=1e-6)
+
+
 def test_target_clip_bounds_the_td_target():
     class Big(LinearNets):
         def q(self, params, episode, idx, action):
@@ -176,7 +192,7 @@ def test_demo_batches_come_from_demonstrations_unrelabelled_and_the_radius_is_an
 TAU = 0.025
 
 
-def _toy_cfg(**over):
+def _toy_cfg(loop_over=None, **over):
     loop = dict(
         num_envs=8,
         episode_len=10,
@@ -187,6 +203,7 @@ def _toy_cfg(**over):
         eval_episodes=100,
         seed=0,
     )
+    loop.update(loop_over or {})
     return TrainConfig(
         agent=AgentConfig("vpm", obs_norm=True, critic_obs="privileged", critic_layer_norm=True),
         sac=SACConfig(batch_size=128, init_alpha=0.05, target_clip=True, bc_weight=1.0, bc_batch_size=64),
@@ -258,6 +275,26 @@ def test_annealed_teacher_leaves_the_last_batches_to_the_agent():
     )
     runner = Runner(make_train(cfg, make_toy(success_tau=TAU)))
     assert [int(runner.expert_envs(s).sum()) for s in (160, 320, 640, 800, 960, 1200)] == [4, 4, 2, 1, 0, 0]
+
+
+def test_the_anchor_is_the_actor_of_anneal_start_frozen_after_it():
+    cfg = dataclasses.replace(
+        _toy_cfg(loop_over=dict(total_env_steps=640)),
+        sac=dataclasses.replace(_toy_cfg().sac, anchor_weight=2.0),
+        demo=DemoConfig(warmup=True, fraction=0.5, noise=0.1, anneal_start=320, anneal_end=480),
+    )
+    runner = Runner(make_train(cfg, make_toy(success_tau=TAU)))
+    state, history = runner.init(jax.random.PRNGKey(0)), []
+    actors = {}
+    while int(state.env_steps) < cfg.loop.total_env_steps:
+        state, metrics = runner.iteration(state)
+        history.append(metrics)
+        actors[int(state.env_steps)] = [np.array(x) for x in jax.tree.leaves(state.sac.actor_params)]
+    for a, b in zip(jax.tree.leaves(state.anchor_actor_params), actors[320]):
+        np.testing.assert_array_equal(a, b)  # the batch ending at anneal_start, kept to the end
+    assert not all(np.array_equal(a, b) for a, b in zip(actors[400], actors[320]))
+    drifts = [float(h["sac/anchor_drift"]) for h in history if int(h["env_steps"]) > 320]
+    assert all(np.isfinite(drifts)) and max(drifts) > 0.0  # the actor moved and the term saw it
 
 
 def test_every_feature_together_learns_the_toy_task():

@@ -128,6 +128,13 @@ class SACConfig:
     bc_batch_size: int = 128
     q_filter: bool = True
     actor_loss: ActorLoss = "sac"
+    # The actor held to its own past self as the teacher leaves (demo.anneal_start/anneal_end, the
+    # KL-to-the-supervised-policy idea of AlphaStar, here a squared action distance): at anneal_start a
+    # frozen copy of the actor is kept, and the actor loss adds anchor_weight * (1 - teacher scale)
+    # times the squared distance between the actor's and the copy's deterministic actions on the
+    # batch's states, so the cloning term's weight passes to the anchor as the teacher goes. The copy
+    # never reads the expert again: the last stretch is the agent's own. 0: no anchor.
+    anchor_weight: float = 0.0
 
     def __post_init__(self):
         _check(math.isfinite(self.lr) and self.lr > 0, "sac.lr", "a finite number > 0", self.lr)
@@ -155,6 +162,12 @@ class SACConfig:
             self.bc_weight,
         )
         _positive_int("sac.bc_batch_size", self.bc_batch_size)
+        _check(
+            math.isfinite(self.anchor_weight) and self.anchor_weight >= 0,
+            "sac.anchor_weight",
+            "a finite number >= 0",
+            self.anchor_weight,
+        )
         _check(isinstance(self.q_filter, bool), "sac.q_filter", "a bool", self.q_filter)
         _check(self.actor_loss in ACTOR_LOSSES, "sac.actor_loss", f"one of {ACTOR_LOSSES}", self.actor_loss)
         if self.actor_loss == "bc":
@@ -384,6 +397,13 @@ class TrainConfig:
             "sac.bc_weight",
             "0 unless demonstrations are collected (demo.warmup or demo.fraction > 0)",
             self.sac.bc_weight,
+        )
+        _check(
+            self.sac.anchor_weight == 0 or self.demo.anneal_start is not None,
+            "sac.anchor_weight",
+            "0 unless the teacher is annealed (demo.anneal_start and demo.anneal_end set; the anchor is the "
+            "actor at anneal_start)",
+            self.sac.anchor_weight,
         )
         if self.demo.anneal_start is not None:
             _check(

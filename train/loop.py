@@ -75,6 +75,9 @@ class TrainState:
     best_eval_success: jax.Array
     best_env_steps: jax.Array  # env_steps at which the best params were evaluated (-1: none yet)
     norm_stats: dict[str, RunningStats]  # running input statistics (AgentConfig.obs_norm)
+    # The actor as it was at the teacher's anneal_start, frozen after it (SACConfig.anchor_weight); a
+    # copy of the initial actor, never updated, without an anchor.
+    anchor_actor_params: Params
 
 
 @dataclasses.dataclass(frozen=True)
@@ -170,13 +173,15 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
             best_eval_success=jnp.zeros((), jnp.float32),
             best_env_steps=jnp.array(-1, jnp.int32),
             norm_stats=normalizer.init_stats(agent.critic_obs, adapter.priv_dim) if agent.obs_norm else {},
+            anchor_actor_params=jax.tree.map(jnp.copy, sac_state.actor_params),
         )
 
     collect = make_collect(config, adapter, nets, action_dim)
 
     bc = sac_cfg.bc_weight > 0
+    anchored = sac_cfg.anchor_weight > 0
 
-    def run_updates(sac_state, buffer, key, tau, bc_scale):
+    def run_updates(sac_state, buffer, key, tau, bc_scale, anchor):
         def body(s, k):
             k_sample, k_demo, k_update = jax.random.split(on_device(k), 3)
             batch = replay.sample(buffer, k_sample, batch_dev, success_tau=tau)
@@ -185,7 +190,7 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
                 if bc
                 else None
             )
-            return update(s, batch, k_update, demo, bc_scale)
+            return update(s, batch, k_update, demo, bc_scale, anchor if anchored else None)
 
         sac_state, metrics = jax.lax.scan(body, sac_state, jax.random.split(key, loop.updates_per_iteration))
         metrics = jax.tree.map(jnp.mean, metrics)
@@ -229,16 +234,21 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
         # The teacher's annealing factor on the cloning weight, at this batch's env steps.
         bc_scale = demo_cfg.teacher_scale(env_steps)
 
-        update_metrics_shape = jax.eval_shape(run_updates, sac_state, buffer, k_update, tau, bc_scale)[1]
+        anchor = ts.anchor_actor_params
+        args = (sac_state, buffer, k_update, tau, bc_scale, anchor)
+        update_metrics_shape = jax.eval_shape(run_updates, *args)[1]
         skip_metrics = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), update_metrics_shape)
         if loop.updates_per_iteration > 0:
-            sac_state, update_metrics = jax.lax.cond(
-                learn, run_updates, lambda s, b, k, t, w: (s, skip_metrics), sac_state, buffer, k_update, tau, bc_scale
-            )
+            sac_state, update_metrics = jax.lax.cond(learn, run_updates, lambda s, *_: (s, skip_metrics), *args)
         else:
             update_metrics = skip_metrics
+        if anchored:  # the actor follows itself until the teacher starts to leave, then is frozen
+            follow = env_steps <= demo_cfg.anneal_start
+            anchor = jax.tree.map(lambda a, h: jnp.where(follow, a, h), sac_state.actor_params, anchor)
 
-        new_ts = ts.replace(sac=sac_state, buffer=buffer, env_steps=env_steps, norm_stats=norm_stats)
+        new_ts = ts.replace(
+            sac=sac_state, buffer=buffer, env_steps=env_steps, norm_stats=norm_stats, anchor_actor_params=anchor
+        )
         metrics = {
             **{f"sac/{k}": v for k, v in update_metrics.items()},
             "learning": learn,

@@ -102,16 +102,20 @@ def bc_loss_value(action, expert_action, keep):
     return jnp.mean(keep * jnp.sum((action - expert_action) ** 2, axis=-1))
 
 
-def make_actor_loss(nets: Networks, bc_weight: float = 0.0, q_filter: bool = True, objective: str = "sac") -> Callable:
-    """``actor_loss(actor_params, critic_params, alpha, batch, key, demo=None, bc_scale=1.0)``: SAC's
-    actor loss plus ``bc_weight * bc_scale`` times the cloning term (``objective`` "sac"), or the
-    cloning term alone ("bc"). ``bc_scale`` is the teacher's annealing factor (DemoConfig)."""
+def make_actor_loss(
+    nets: Networks, bc_weight: float = 0.0, q_filter: bool = True, objective: str = "sac", anchor_weight: float = 0.0
+) -> Callable:
+    """``actor_loss(actor_params, critic_params, alpha, batch, key, demo=None, bc_scale=1.0, anchor=None)``:
+    SAC's actor loss plus ``bc_weight * bc_scale`` times the cloning term (``objective`` "sac"), or the
+    cloning term alone ("bc"). ``bc_scale`` is the teacher's annealing factor (DemoConfig). With
+    ``anchor`` (frozen actor params) and ``anchor_weight`` > 0, plus ``anchor_weight * (1 - bc_scale)``
+    times the squared distance to the anchor's deterministic action on the batch's states."""
     if objective not in ("sac", "bc"):
         raise ConfigError(f"actor objective must be 'sac' or 'bc', got {objective!r}")
     if objective == "bc" and (bc_weight <= 0 or q_filter):
         raise ConfigError("the cloning-only actor needs bc_weight > 0 and no Q-filter")
 
-    def actor_loss(actor_params, critic_params, alpha, batch, key, demo=None, bc_scale=1.0):
+    def actor_loss(actor_params, critic_params, alpha, batch, key, demo=None, bc_scale=1.0, anchor=None):
         B = batch["t"].shape[0]
         noise = jax.random.normal(key, (B, 1, nets.action_dim))
         action, logp = nets.policy(actor_params, batch, _at(batch, 0), noise)
@@ -136,6 +140,12 @@ def make_actor_loss(nets: Networks, bc_weight: float = 0.0, q_filter: bool = Tru
             bc = bc_loss_value(pi, expert, keep)
             loss = loss + bc_weight * bc_scale * bc
             aux.update(bc_loss=bc, bc_kept=jnp.mean(keep), bc_scale=jnp.asarray(bc_scale, jnp.float32))
+        if anchor is not None and anchor_weight > 0:
+            mine = nets.deterministic_action(actor_params, batch, _at(batch, 0))[:, 0]
+            held = jax.lax.stop_gradient(nets.deterministic_action(anchor, batch, _at(batch, 0))[:, 0])
+            drift = bc_loss_value(mine, held, jnp.ones(mine.shape[:1]))
+            loss = loss + anchor_weight * (1.0 - bc_scale) * drift
+            aux.update(anchor_drift=drift)
         return loss, aux
 
     return actor_loss
@@ -196,7 +206,9 @@ def make_update(
     nets = nets if nets is not None else make_networks(agent, action_dim)
     opt = make_optimizer(sac, total_updates)
     critic_loss = jax.value_and_grad(make_critic_loss(nets, sac.gamma, sac.target_clip), has_aux=True)
-    actor_loss = jax.value_and_grad(make_actor_loss(nets, sac.bc_weight, sac.q_filter, sac.actor_loss), has_aux=True)
+    actor_loss = jax.value_and_grad(
+        make_actor_loss(nets, sac.bc_weight, sac.q_filter, sac.actor_loss, sac.anchor_weight), has_aux=True
+    )
     alpha_grad = jax.value_and_grad(alpha_loss)
     target_entropy = sac.resolved_target_entropy(action_dim)
 
@@ -208,10 +220,11 @@ def make_update(
         return optax.apply_updates(params, updates), opt_state
 
     def update(
-        state: SACState, batch: dict, key: jax.Array, demo: dict | None = None, bc_scale=1.0
+        state: SACState, batch: dict, key: jax.Array, demo: dict | None = None, bc_scale=1.0, anchor=None
     ) -> tuple[SACState, dict]:
         """One update; ``demo`` is a batch of demonstration steps for the behaviour-cloning term, whose
-        weight ``bc_scale`` multiplies (the teacher's annealing)."""
+        weight ``bc_scale`` multiplies (the teacher's annealing); ``anchor`` the frozen actor params the
+        actor is held to as the teacher goes (SACConfig.anchor_weight)."""
         k_next, k_pi = jax.random.split(key)
         alpha = jnp.exp(state.log_alpha)  # this update's coefficient, fixed before the alpha step
 
@@ -220,7 +233,9 @@ def make_update(
         )
         critic_params, critic_opt_state = step(state.critic_params, state.critic_opt_state, mean(c_grads))
 
-        (a_loss, a_aux), a_grads = actor_loss(state.actor_params, critic_params, alpha, batch, k_pi, demo, bc_scale)
+        (a_loss, a_aux), a_grads = actor_loss(
+            state.actor_params, critic_params, alpha, batch, k_pi, demo, bc_scale, anchor
+        )
         logp = a_aux["logp"]
         al_loss, al_grad = alpha_grad(state.log_alpha, logp, target_entropy)
         a_grads, al_grad = mean((a_grads, al_grad))
