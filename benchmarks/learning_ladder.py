@@ -33,6 +33,7 @@ from rich.table import Table
 
 from train import presets
 from train import run as run_mod
+from train import policies
 from train.evaluate import EvalSpec, evaluate
 
 # name -> (agent, preset, overrides). 5 cm rungs train at 5 cm (the original vision-proprioception
@@ -75,7 +76,7 @@ def curve(run_dir: Path) -> list[dict]:
 
 
 def score(run_dir: Path, which: str, episodes: int, setting: str = "standard") -> dict:
-    policy = run_mod.load_policy(run_dir / which)
+    policy = policies.load_policy(run_dir / which)
     env = policy.config.env
     # Success at each radius comes from the final distances.
     res = evaluate(policy, EvalSpec(setting=setting, shape="all", episodes=episodes, batch=min(50, episodes)))

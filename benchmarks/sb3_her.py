@@ -76,7 +76,7 @@ def main() -> None:
     config, jax_curve = EnvConfig(), None
     if args.jax_run is not None:
         from train.report import read_training
-        from train.run import load_config
+        from train.presets import load_config
 
         config = load_config(args.jax_run / "config.json").env  # the same task as the JAX run
         jax_curve = read_training(args.jax_run)

@@ -48,7 +48,7 @@ class Export:
         from rich.console import Console
 
         from export.policy_file import FORMAT, FORMAT_VERSION, export_policy
-        from train.run import load_policy
+        from train.policies import load_policy
 
         source = Path(self.source)
         if source.is_dir():

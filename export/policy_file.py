@@ -1,6 +1,6 @@
 """The exported policy file: one `.npz` of float32 weights plus a JSON metadata record inside it.
 
-    export_policy(train.run.load_policy("runs/egru/best_policy"), Path("egru.npz"))   # needs jax (training side)
+    export_policy(train.policies.load_policy("runs/egru/best_policy"), Path("egru.npz"))   # needs jax (training side)
     pf = load_npz("egru.npz")                                                       # NumPy only
 
 Arrays, named by their flax parameter paths (kernels are flax layouts: Dense (in, out), Conv HWIO):
@@ -23,7 +23,7 @@ reads the package's encoder (msgpack, read here with NumPy) and refuses it if it
 
 `load_npz` checks everything a reader relies on (format, version, every array's presence, shape, dtype and
 finiteness against the shapes the metadata implies) and raises ValueError naming the file and the problem.
-`load_as_policy` turns a file back into a `train.run.Policy` (for `mjx-push eval` on the MJX scene).
+`load_as_policy` turns a file back into a `train.policies.Policy` (for `mjx-push eval` on the MJX scene).
 This module imports only NumPy when loading; `export_policy` and `load_as_policy` import the training
 side lazily.
 """
@@ -314,7 +314,7 @@ def _pixel_convention() -> str:
 
 
 def build_metadata(policy, provenance: dict | None = None) -> dict:
-    """The JSON record for a `train.run.Policy`; ``provenance`` (e.g. the run directory and the commit
+    """The JSON record for a `train.policies.Policy`; ``provenance`` (e.g. the run directory and the commit
     that trained it) is recorded as given."""
     from importlib.metadata import PackageNotFoundError, version
 
@@ -425,13 +425,14 @@ def _unflatten(arrays: dict[str, np.ndarray], prefix: str) -> dict:
 
 
 def load_as_policy(path: Path | str):
-    """An exported .npz back as a `train.run.Policy` (JAX arrays), e.g. to evaluate it on the MJX scene.
+    """An exported .npz back as a `train.policies.Policy` (JAX arrays), e.g. to evaluate it on the MJX scene.
     The encoder's log-variance head is not exported (only the mean is ever used by a policy): it comes
     back as zeros so the flax encoder's parameter tree is complete."""
     import jax
     import jax.numpy as jnp
 
-    from train.run import Policy, config_from_dict
+    from train.policies import Policy
+    from train.presets import config_from_dict
 
     pf = load_npz(path)
     try:
@@ -452,7 +453,7 @@ def load_as_policy(path: Path | str):
 
 
 def export_policy(policy, out: Path | str, encoder: str = "embed", provenance: dict | None = None) -> dict:
-    """Write `policy` (a `train.run.Policy`) to the .npz `out`; returns the metadata written.
+    """Write `policy` (a `train.policies.Policy`) to the .npz `out`; returns the metadata written.
     ``encoder`` "package" leaves the encoder out and records the package encoder's sha256 instead (the
     policy must have been trained with that encoder: checked, array by array)."""
     out = Path(out)

@@ -22,6 +22,7 @@ import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
 from train import data_parallel, run as run_mod  # noqa: E402
+from train import presets  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -42,7 +43,7 @@ def main(argv=None) -> int:
     if os.environ.get("MJX_PUSH_TEST_OPTIMIZE") != "1" and a.toy:  # as tests/conftest.py
         jax.config.update("jax_disable_most_optimizations", True)
     data_parallel.initialize(f"localhost:{a.port}", a.num_processes, a.process_id)
-    cfg = run_mod.config_from_dict(json.loads(a.config.read_text()))
+    cfg = presets.config_from_dict(json.loads(a.config.read_text()))
     adapter = None
     if a.toy:
         from tests.toy import make_toy

@@ -146,11 +146,11 @@ def toy_run_config(encoder, kind="ugru", seed=0):
 
 def latest_state(run_dir, cfg, adapter):
     """The TrainState of a run's latest checkpoint (`adapter`: the environment it trained on)."""
-    from train import run as run_mod
+    from train import checkpoints
     from train.loop import make_train
 
     trainer = make_train(cfg.train, adapter)
-    return run_mod.Checkpoints(Path(run_dir) / "checkpoints").restore(trainer.init(jax.random.PRNGKey(0)), cfg)[0]
+    return checkpoints.Checkpoints(Path(run_dir) / "checkpoints").restore(trainer.init(jax.random.PRNGKey(0)), cfg)[0]
 
 
 def renderer_or_skip() -> None:

@@ -27,7 +27,7 @@ from train import data_parallel
 from train.config import LoopConfig
 from train.loop import Runner, make_train
 from train.presets import RunConfig
-from train.run import config_dict
+from train.presets import config_dict
 from train.networks import make_networks
 from train.sac import make_update
 

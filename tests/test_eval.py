@@ -15,7 +15,7 @@ from tests.helpers import B, HOME_XY, a_s_for, action_for, make_params
 from train import report
 from export.cli import main as cli_main
 from train.evaluate import EvalSpec, evaluator_for, sem, summarize
-from train.run import Policy
+from train.policies import Policy
 
 
 # --- arithmetic ---------------------------------------------------------------------------------------
@@ -151,9 +151,9 @@ def evaluator(tiny_egru_run):
 
 def test_the_same_seeds_give_the_same_episodes_to_every_policy(tiny_egru_run, evaluator):
     cfg, d, _, state = tiny_egru_run
-    from train import run as run_mod
+    from train import policies
 
-    trained = run_mod.load_policy(d / "best_policy")
+    trained = policies.load_policy(d / "best_policy")
     from train.networks import make_networks
 
     other_actor = make_networks(cfg.train.agent).init_actor(jax.random.PRNGKey(99), cfg.env.episode_length)
@@ -187,9 +187,9 @@ def test_the_same_seeds_give_the_same_episodes_to_every_policy(tiny_egru_run, ev
 
 def test_report_end_to_end_from_a_trained_checkpoint(tiny_egru_run, evaluator, tmp_path):
     cfg, d, _, _ = tiny_egru_run
-    from train import run as run_mod
+    from train import policies
 
-    policy = run_mod.load_policy(d / "best_policy")
+    policy = policies.load_policy(d / "best_policy")
     results = {}
     for agent in ("egru", "vpm"):  # the same policy under two names: the report's layout, not a comparison
         results[agent] = {}
@@ -274,7 +274,7 @@ def test_reproduce_reuses_the_run_and_caches_each_evaluation(tiny_egru_run, eval
     import shutil
 
     from train import reproduce as rep
-    from train import run as run_mod
+    from train import policies
     from train.networks import make_networks
 
     cfg, d, _, _ = tiny_egru_run
@@ -348,9 +348,9 @@ def test_reproduce_reuses_the_run_and_caches_each_evaluation(tiny_egru_run, eval
         rep.reproduce("smoke", 1, tmp_path / "empty", episodes=2, agents=("vpm",), report_only=True, expert=False)
 
     # New weights under the same name: the cached evaluation no longer belongs to them.
-    policy = run_mod.load_policy(run_dir / name)
+    policy = policies.load_policy(run_dir / name)
     other = make_networks(cfg.train.agent).init_actor(jax.random.PRNGKey(7), cfg.env.episode_length)
-    run_mod.save_policy(run_dir / name, cfg, other, policy.encoder_params, policy.scores)
+    policies.save_policy(run_dir / name, cfg, other, policy.encoder_params, policy.scores)
     log, _ = go()
     assert "reusing evaluation" not in log
     assert json.loads(cache.read_text())["policy_sha256"] != rec["policy_sha256"]

@@ -28,7 +28,7 @@ from mjx_push.env import decode_substeps as jax_decode_substeps
 from train.config import AGENT_KINDS
 from train.networks import make_networks
 from train.presets import make
-from train.run import Policy, save_policy
+from train.policies import Policy, save_policy
 from tests.helpers import a_s_for
 
 REPO = Path(__file__).resolve().parents[1]

@@ -18,6 +18,8 @@ import numpy as np
 import pytest
 
 from train import run as run_mod
+from train import checkpoints
+from train import policies
 from export.cli import main as cli_main
 from tests.toy import make_toy
 
@@ -65,9 +67,9 @@ def test_run_writes_logs_checkpoints_and_policies(full_run):
     evals = [r for r in rows if r.get("eval/mean_reward")]
     assert [int(float(r["env_steps"])) for r in evals] == [80, 160, 200]
     assert list((d / "tb").glob("events.out.tfevents.*"))
-    assert run_mod.Checkpoints(d / "checkpoints").latest() == 200
+    assert checkpoints.Checkpoints(d / "checkpoints").latest() == 200
     assert json.loads((d / "config.json").read_text())["train"]["loop"]["total_env_steps"] == 200
-    best = run_mod.load_policy(d / "best_policy")
+    best = policies.load_policy(d / "best_policy")
     assert best.config == cfg
     jax.tree.map(np.testing.assert_array_equal, best.actor_params, state.best_actor_params)
     assert best.scores["best_eval_mean_reward"] == pytest.approx(max(float(r["eval/mean_reward"]) for r in evals))
@@ -115,23 +117,23 @@ def test_corrupt_checkpoint_gives_a_clear_error(full_run, tmp_path, toy):
 def test_policy_files_are_validated(full_run, tmp_path):
     cfg, d, _, _ = full_run
     with pytest.raises(ValueError, match="not found"):
-        run_mod.load_policy(tmp_path / "nothing")
+        policies.load_policy(tmp_path / "nothing")
     bad = tmp_path / "bad"
     (tmp_path / "bad.json").write_text((d / "best_policy.json").read_text())
     (tmp_path / "bad.msgpack").write_bytes((d / "best_policy.msgpack").read_bytes()[:100])
     with pytest.raises(ValueError, match="corrupt"):
-        run_mod.load_policy(bad)
+        policies.load_policy(bad)
     # Weights of another agent kind under this record: shapes do not match.
     rec = json.loads((d / "best_policy.json").read_text())
     rec["config"]["agent"] = rec["config"]["train"]["agent"]["kind"] = "vpm"
     (tmp_path / "bad.json").write_text(json.dumps(rec))
     (tmp_path / "bad.msgpack").write_bytes((d / "best_policy.msgpack").read_bytes())
     with pytest.raises(ValueError, match="do not match a vpm network"):
-        run_mod.load_policy(bad)
+        policies.load_policy(bad)
     rec["version"] = 99
     (tmp_path / "bad.json").write_text(json.dumps(rec))
     with pytest.raises(ValueError, match="format version 99"):
-        run_mod.load_policy(bad)
+        policies.load_policy(bad)
 
 
 # --- reliability: signals, crashes, concurrent runs -----------------------------------------------------
@@ -146,7 +148,7 @@ def test_sigint_stops_after_the_batch_with_a_checkpoint_and_resume_continues(ful
 
     partial, _ = run_mod.run(cfg, d, adapter=toy, stop_on_signal=True, on_iteration=ctrl_c)
     assert (partial["interrupted_at_env_steps"], partial["signal"]) == (120, "SIGINT")
-    assert run_mod.Checkpoints(d / "checkpoints").latest() == 120  # written because of the signal
+    assert checkpoints.Checkpoints(d / "checkpoints").latest() == 120  # written because of the signal
     assert signal.getsignal(signal.SIGINT) is handler  # the process's own handler is back
     summary, state = run_mod.run(cfg, d, adapter=toy, resume=True)
     assert summary["resumed_from_env_steps"] == 120
@@ -198,7 +200,7 @@ def test_kill_9_while_a_checkpoint_is_written_resumes_to_the_same_result(full_ru
     assert r.returncode == -signal.SIGKILL, r.stdout[-2000:] + r.stderr[-3000:]
     ckpt = d / "checkpoints"
     assert list(ckpt.glob("120.orbax-checkpoint-tmp*"))  # the half-committed checkpoint is still there
-    assert run_mod.Checkpoints(ckpt).latest() == 80  # ... and is not taken for one
+    assert checkpoints.Checkpoints(ckpt).latest() == 80  # ... and is not taken for one
     summary, state = run_mod.run(cfg, d, adapter=toy, resume=True)
     assert summary["resumed_from_env_steps"] == 80
     for a, b in zip(jax.tree.leaves(jax.device_get(state)), jax.tree.leaves(full_state)):

@@ -11,6 +11,7 @@ import pytest
 from mjx_push import encoder as enc
 from tests.helpers import tiny_run_config
 from train import run as run_mod
+from train import policies
 from train.config import LoopConfig
 from train.push_task import make_push_adapter
 
@@ -28,7 +29,7 @@ def test_egru_trains_on_the_pushing_scene(tiny_egru_run):
     # Different objects give different latents; the goal's latent is the goal mask's.
     assert np.ptp(z[:, 0], axis=0).max() > 1e-4
     assert np.isfinite(jax.tree.leaves(state.sac.actor_params)[0]).all()
-    policy = run_mod.load_policy(d / "best_policy")
+    policy = policies.load_policy(d / "best_policy")
     assert policy.config.agent == "egru"
 
 

@@ -253,6 +253,7 @@ class Train:
         from rich.console import Console
 
         from train import data_parallel, run as run_mod
+        from train import presets
         from train.progress import TrainProgress
 
         # Before anything starts JAX's backend: a multi-process run's devices are all its processes'.
@@ -267,7 +268,7 @@ class Train:
                     f"--resume: no run directory {run_dir}"
                     + ("" if self.run_dir else " (the default for these --agent/--preset/--seed; pass --run-dir)")
                 )
-            cfg = run_mod.load_config(run_dir / "config.json")
+            cfg = presets.load_config(run_dir / "config.json")
             try:
                 run_mod.check_not_finished(run_dir, cfg)
             except run_mod.RunFinished as done:
@@ -329,9 +330,9 @@ class Train:
 
 def resolve_policy(path: Path, name: str = "POLICY"):
     """A run directory (its best policy) or a saved policy (.msgpack/.json or their stem) ->
-    train.run.Policy (exported files are the export side's: `export.cli.Eval`). Errors name the option
+    train.policies.Policy (exported files are the export side's: `export.cli.Eval`). Errors name the option
     (`name`) and the path as the user typed it."""
-    from train import run as run_mod
+    from train import policies
 
     path = Path(path)
     stem = path.with_suffix("") if path.suffix in (".msgpack", ".json") else path
@@ -343,9 +344,9 @@ def resolve_policy(path: Path, name: str = "POLICY"):
     try:
         if path.is_dir():
             if (path / "best_policy.msgpack").is_file():
-                return run_mod.load_policy(path / "best_policy")
+                return policies.load_policy(path / "best_policy")
             raise ConfigError("not a finished run directory (no best_policy.msgpack)")
-        return run_mod.load_policy(path)
+        return policies.load_policy(path)
     except ValueError as e:
         raise ConfigError(f"{name} {path}: {e}") from None
 
@@ -381,7 +382,7 @@ class Eval(EvalOptions):
     """JSON with the table and per-episode values"""
 
     def resolve(self, path: Path):
-        """POLICY -> train.run.Policy (the export side's command adds exported and shipped files)."""
+        """POLICY -> train.policies.Policy (the export side's command adds exported and shipped files)."""
         return resolve_policy(path)
 
     def run(self) -> None:

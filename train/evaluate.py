@@ -30,7 +30,7 @@ from mjx_push import devices, objects, scene
 from mjx_push.env import EnvConfig, PushEnv
 from train.networks import make_networks
 from train.presets import RunConfig
-from train.run import Policy
+from train.policies import Policy
 from mjx_push.errors import ConfigError
 
 SETTINGS = ("standard", "difficult", "custom")

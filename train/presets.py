@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from pathlib import Path
 from typing import Literal, get_args
 
 from mjx_push import objects
@@ -218,3 +219,22 @@ def with_overrides(cfg: RunConfig, overrides: dict) -> RunConfig:
             raise ConfigError(f"--set {dotted}: unknown setting (no field {leaf!r})")
         node[leaf] = value
     return configio.from_dict(RunConfig, d, "config")
+
+
+# --- a RunConfig on disk (config.json, checkpoint and policy records) ------------------------------
+def config_dict(cfg: RunConfig) -> dict:
+    return configio.to_dict(cfg)
+
+
+def config_from_dict(d: dict) -> RunConfig:
+    return configio.from_dict(RunConfig, d, "config")
+
+
+def load_config(path: Path) -> RunConfig:
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"run config not found: {path}")
+    try:
+        return config_from_dict(json.loads(path.read_text()))
+    except json.JSONDecodeError as e:
+        raise ConfigError(f"run config {path} is not valid JSON: {e}") from None

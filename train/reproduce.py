@@ -33,6 +33,7 @@ import numpy as np
 from train import atomic, presets
 from train.config import AGENT_KINDS
 from train import run as run_mod
+from train import policies
 from train.evaluate import DISTANCE_METRICS, METRICS, EvalSpec, ExpertPolicy, evaluate, evaluator_for, summarize
 from train.report import read_training, write_report
 from mjx_push.errors import ConfigError
@@ -48,7 +49,7 @@ EVAL_EPISODES = {"smoke": 8, "cpu": 100, "cpu-long": 100, "reference": 100, "pap
 
 def train_or_reuse(cfg: presets.RunConfig, run_dir: Path, log: Callable[[str], None]) -> None:
     if (run_dir / "summary.json").is_file() and (run_dir / "best_policy.msgpack").is_file():
-        saved = run_mod.load_config(run_dir / "config.json")
+        saved = presets.load_config(run_dir / "config.json")
         if saved != cfg:
             raise ConfigError(f"{run_dir} holds a finished run of another configuration; use another --out")
         log(f"reusing finished run {run_dir}")
@@ -106,7 +107,7 @@ def evaluate_run(cfg: presets.RunConfig, run_dir: Path, spec: EvalSpec, log: Cal
             log(f"reusing evaluation {path}")
             return summarize({k: np.asarray(v) for k, v in per.items()})
     t0 = time.perf_counter()
-    res = evaluator_for(cfg.env, cfg.train.agent, spec.batch).evaluate(run_mod.load_policy(run_dir / name), spec)
+    res = evaluator_for(cfg.env, cfg.train.agent, spec.batch).evaluate(policies.load_policy(run_dir / name), spec)
     record = {
         "policy": name,
         "policy_env_steps": step,
@@ -136,7 +137,7 @@ def expert_job(
     (it reads the simulator's ground truth, so it bounds what the task allows, not what a policy
     sees). Cached in OUT/expert/ like the agents' evaluations, keyed by the spec and the settings."""
     cfg = presets.make("vpm", budget)
-    key = {"env": run_mod.config_dict(cfg)["env"], "expert": run_mod.config_dict(cfg)["expert"]}
+    key = {"env": presets.config_dict(cfg)["env"], "expert": presets.config_dict(cfg)["expert"]}
     summaries = {}
     for shape in shapes:
         spec = EvalSpec(setting=setting, shape=shape, episodes=episodes, batch=min(episodes, 20))

@@ -1,4 +1,6 @@
-"""A training run on disk: run directory, logs, orbax checkpoints, exact resume, saved policies.
+"""A training run on disk: the run directory, its lock and checks, and the run itself (train, checkpoint,
+resume exactly, save policies and a summary). Its parts live apart: checkpoints in train.checkpoints,
+saved policies in train.policies, the metric log in train.metric_log, config files in train.presets.
 
 Run directory layout (``mjx-push train --run-dir DIR``):
 
@@ -19,20 +21,13 @@ run needs to continue: resuming replays the remaining batches exactly (bitwise o
 from __future__ import annotations
 
 import contextlib
-import csv
-import io
 import json
-import shutil
 import time
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Callable
 
 import jax
-import jax.numpy as jnp
 import numpy as np
-import orbax.checkpoint as ocp
-from flax import serialization
 
 from mjx_push import encoder as enc
 from train import atomic, configio, data_parallel
@@ -41,215 +36,13 @@ from train.run_lock import RunLock
 from train.adapter import EnvAdapter
 from train.loop import Runner, TrainState, make_train
 from train.loop import train as train_loop
-from train.presets import RunConfig
+from train.checkpoints import Checkpoints
+from train.metric_log import MetricLog
+from train.policies import save_policy
+from train.presets import RunConfig, config_dict, load_config
 from mjx_push.errors import ConfigError
 
-POLICY_FORMAT = "mjx-push-policy"
-POLICY_VERSION = 1
-CHECKPOINT_FORMAT = "mjx-push-checkpoint"
-CHECKPOINT_VERSION = 1
 
-
-def config_dict(cfg: RunConfig) -> dict:
-    return configio.to_dict(cfg)
-
-
-def config_from_dict(d: dict) -> RunConfig:
-    return configio.from_dict(RunConfig, d, "config")
-
-
-def load_config(path: Path) -> RunConfig:
-    path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"run config not found: {path}")
-    try:
-        return config_from_dict(json.loads(path.read_text()))
-    except json.JSONDecodeError as e:
-        raise ConfigError(f"run config {path} is not valid JSON: {e}") from None
-
-
-# --- checkpoints -------------------------------------------------------------------------------------
-class Checkpoints:
-    """Orbax checkpoints of a TrainState, keyed by environment steps, the last `keep` kept."""
-
-    def __init__(self, directory: Path, keep: int = 2):
-        self.directory = Path(directory).absolute()
-        # A checkpoint is written into a temporary directory and renamed when complete, so a kill mid-write
-        # leaves the previous checkpoint as the latest; such leftovers are removed here, before the manager
-        # starts. (Orbax's own cleanup runs in a background thread: two managers of one directory in a
-        # process, e.g. a check of the latest step and then a resume, raced to delete the same folder.)
-        for leftover in self.directory.glob("*.orbax-checkpoint-tmp*"):
-            shutil.rmtree(leftover, ignore_errors=True)
-        options = ocp.CheckpointManagerOptions(
-            max_to_keep=keep, enable_async_checkpointing=False, create=True, cleanup_tmp_directories=False
-        )
-        self.manager = ocp.CheckpointManager(self.directory, options=options)
-
-    def save(self, state: TrainState, config: RunConfig, extra: dict) -> int:
-        step = int(state.env_steps)
-        meta = {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "config": config_dict(config), **extra}
-        self.manager.save(
-            step, args=ocp.args.Composite(state=ocp.args.StandardSave(state), meta=ocp.args.JsonSave(meta)), force=True
-        )
-        self.manager.wait_until_finished()
-        return step
-
-    def latest(self) -> int | None:
-        return self.manager.latest_step()
-
-    def restore(self, template: TrainState, config: RunConfig, step: int | None = None) -> tuple[TrainState, dict]:
-        """The checkpoint at `step` (default latest). Raises ValueError with the reason when there is
-        none, when it was made by another configuration, or when its arrays are unreadable."""
-        step = self.latest() if step is None else step
-        if step is None:
-            raise ConfigError(f"no checkpoint in {self.directory}")
-        try:
-            meta = self.manager.restore(step, args=ocp.args.Composite(meta=ocp.args.JsonRestore()))["meta"]
-        except Exception as e:
-            raise ConfigError(
-                f"checkpoint {self.directory}/{step} is corrupt (its record cannot be read): {e}"
-            ) from None
-        if not isinstance(meta, dict) or meta.get("format") != CHECKPOINT_FORMAT:
-            raise ConfigError(f"{self.directory}/{step} is not an mjx-push checkpoint")
-        if meta.get("version") != CHECKPOINT_VERSION:
-            raise ConfigError(
-                f"checkpoint {self.directory}/{step} has format version {meta.get('version')}, "
-                f"this mjx-push reads version {CHECKPOINT_VERSION}"
-            )
-        try:  # read through the schema, so a field added since (with its default) is no difference
-            saved = config_dict(config_from_dict(meta.get("config", {})))
-        except ConfigError:
-            saved = meta.get("config", {})
-        diff = configio.differences(saved, config_dict(config))
-        if diff:
-            raise ConfigError(
-                f"checkpoint {self.directory}/{step} was made with a different configuration: " + "; ".join(diff[:6])
-            )
-        abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, template)
-        try:
-            state = self.manager.restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract)))[
-                "state"
-            ]
-        except Exception as e:
-            raise ConfigError(
-                f"checkpoint {self.directory}/{step} is corrupt or does not match this run's "
-                f"state (shapes, dtypes or structure): {type(e).__name__}: {str(e)[:300]}"
-            ) from None
-        return state, meta
-
-
-# --- saved policies ----------------------------------------------------------------------------------
-def save_policy(path: Path, config: RunConfig, actor_params, encoder_params, scores: dict) -> None:
-    """`path`.msgpack (actor + encoder params) and `path`.json (what they are)."""
-    path = Path(path)
-    blob = {"actor": jax.device_get(actor_params), "encoder": jax.device_get(encoder_params)}
-    atomic.write_bytes(path.with_suffix(".msgpack"), serialization.msgpack_serialize(blob))
-    record = {
-        "format": POLICY_FORMAT,
-        "version": POLICY_VERSION,
-        "agent": config.agent,
-        "config": config_dict(config),
-        "scores": scores,
-        "encoder_record": {
-            k: v for k, v in enc.load_record(config.encoder and Path(config.encoder)).items() if k != "curve"
-        },
-    }
-    atomic.write_text(path.with_suffix(".json"), json.dumps(record, indent=2) + "\n")
-
-
-@dataclass(frozen=True)
-class Policy:
-    config: RunConfig
-    actor_params: Any
-    encoder_params: Any
-    scores: dict
-
-
-def load_policy(path: Path) -> Policy:
-    """A policy saved by `save_policy` (give either file or the stem). Clear errors for missing,
-    corrupt or mismatched files."""
-    path = Path(path)
-    stem = path.with_suffix("") if path.suffix in (".msgpack", ".json") else path
-    blob_path, rec_path = stem.with_suffix(".msgpack"), stem.with_suffix(".json")
-    for p in (blob_path, rec_path):
-        if not p.is_file():
-            raise ConfigError(f"policy file not found: {p}")
-    try:
-        record = json.loads(rec_path.read_text())
-    except json.JSONDecodeError as e:
-        raise ConfigError(f"policy record {rec_path} is not valid JSON: {e}") from None
-    if record.get("format") != POLICY_FORMAT:
-        raise ConfigError(f"{rec_path} is not an mjx-push policy record")
-    if record.get("version") != POLICY_VERSION:
-        raise ConfigError(f"policy {rec_path} has format version {record.get('version')}, expected {POLICY_VERSION}")
-    config = config_from_dict(record["config"])
-    try:
-        blob = serialization.msgpack_restore(blob_path.read_bytes())
-    except Exception as e:
-        raise ConfigError(f"policy weights {blob_path} are corrupt: {e}") from None
-    # Check every array against freshly initialised networks of the recorded agent.
-    from train.networks import make_networks
-
-    nets = make_networks(config.train.agent)
-    actor_t = jax.eval_shape(lambda: nets.init_actor(jax.random.PRNGKey(0), config.train.loop.episode_len))
-    encoder_t = enc._template()
-    for name, template in (("actor", actor_t), ("encoder", encoder_t)):
-        if name not in blob:
-            raise ConfigError(f"policy weights {blob_path} have no {name!r} parameters")
-        want = jax.tree.map(lambda s: s.shape, template)
-        try:
-            got = jax.tree.map(lambda a: np.shape(a), blob[name])
-            same = jax.tree.structure(want) == jax.tree.structure(got) and want == got
-        except Exception:
-            same = False
-        if not same:
-            raise ConfigError(
-                f"policy weights {blob_path}: the {name!r} parameters do not match a {config.agent} network"
-            )
-    to_jnp = lambda t: jax.tree.map(jnp.asarray, t)  # noqa: E731
-    return Policy(config, to_jnp(blob["actor"]), to_jnp(blob["encoder"]), record.get("scores", {}))
-
-
-# --- metric logs -------------------------------------------------------------------------------------
-class MetricLog:
-    """metrics.csv + TensorBoard. On resume, rows past the checkpoint are dropped (they will be redone)."""
-
-    def __init__(self, root: Path, resume_env_steps: int | None, write: bool = True):
-        from tensorboardX import SummaryWriter
-
-        self.csv_path = root / "metrics.csv"
-        self.rows: list[dict] = []
-        if resume_env_steps is not None and self.csv_path.is_file():
-            with self.csv_path.open() as f:
-                self.rows = [r for r in csv.DictReader(f) if float(r["env_steps"]) <= resume_env_steps]
-        self.columns: list[str] = list(self.rows[0].keys()) if self.rows else []
-        # The other processes of a multi-process run keep their rows in memory only (process 0 writes).
-        self.tb = SummaryWriter(str(root / "tb"), purge_step=resume_env_steps) if write else None
-
-    def write(self, metrics: dict) -> None:
-        new = [k for k in metrics if k not in self.columns]
-        self.columns += new
-        self.rows.append(metrics)
-        if self.tb is None:
-            return
-        # Rewritten whole (columns may grow at evaluations), atomically: a kill mid-write keeps the old log.
-        out = io.StringIO(newline="")
-        w = csv.DictWriter(out, fieldnames=self.columns)
-        w.writeheader()
-        w.writerows(self.rows)
-        atomic.write_text(self.csv_path, out.getvalue())
-        step = int(metrics["env_steps"])
-        for k, v in metrics.items():
-            if k != "env_steps" and isinstance(v, (int, float)) and v == v:
-                self.tb.add_scalar(k, v, step)
-        self.tb.flush()
-
-    def close(self):
-        if self.tb is not None:
-            self.tb.close()
-
-
-# --- the run -----------------------------------------------------------------------------------------
 def _barrier(name: str) -> None:
     """Wait for every process of a multi-process run (nothing to wait for in one process)."""
     if jax.process_count() > 1:

@@ -1,0 +1,88 @@
+"""Orbax checkpoints of a whole TrainState (params, optimiser states, replay buffer, RNG key, counters,
+best params), keyed by environment steps, each with a JSON record of the run's configuration: what a
+run needs to resume exactly (train/run.py)."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import jax
+import orbax.checkpoint as ocp
+
+from train import configio
+from train.loop import TrainState
+from train.presets import RunConfig, config_dict, config_from_dict
+from mjx_push.errors import ConfigError
+
+CHECKPOINT_FORMAT = "mjx-push-checkpoint"
+CHECKPOINT_VERSION = 1
+
+
+class Checkpoints:
+    """Orbax checkpoints of a TrainState, keyed by environment steps, the last `keep` kept."""
+
+    def __init__(self, directory: Path, keep: int = 2):
+        self.directory = Path(directory).absolute()
+        # A checkpoint is written into a temporary directory and renamed when complete, so a kill mid-write
+        # leaves the previous checkpoint as the latest; such leftovers are removed here, before the manager
+        # starts. (Orbax's own cleanup runs in a background thread: two managers of one directory in a
+        # process, e.g. a check of the latest step and then a resume, raced to delete the same folder.)
+        for leftover in self.directory.glob("*.orbax-checkpoint-tmp*"):
+            shutil.rmtree(leftover, ignore_errors=True)
+        options = ocp.CheckpointManagerOptions(
+            max_to_keep=keep, enable_async_checkpointing=False, create=True, cleanup_tmp_directories=False
+        )
+        self.manager = ocp.CheckpointManager(self.directory, options=options)
+
+    def save(self, state: TrainState, config: RunConfig, extra: dict) -> int:
+        step = int(state.env_steps)
+        meta = {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "config": config_dict(config), **extra}
+        self.manager.save(
+            step, args=ocp.args.Composite(state=ocp.args.StandardSave(state), meta=ocp.args.JsonSave(meta)), force=True
+        )
+        self.manager.wait_until_finished()
+        return step
+
+    def latest(self) -> int | None:
+        return self.manager.latest_step()
+
+    def restore(self, template: TrainState, config: RunConfig, step: int | None = None) -> tuple[TrainState, dict]:
+        """The checkpoint at `step` (default latest). Raises ValueError with the reason when there is
+        none, when it was made by another configuration, or when its arrays are unreadable."""
+        step = self.latest() if step is None else step
+        if step is None:
+            raise ConfigError(f"no checkpoint in {self.directory}")
+        try:
+            meta = self.manager.restore(step, args=ocp.args.Composite(meta=ocp.args.JsonRestore()))["meta"]
+        except Exception as e:
+            raise ConfigError(
+                f"checkpoint {self.directory}/{step} is corrupt (its record cannot be read): {e}"
+            ) from None
+        if not isinstance(meta, dict) or meta.get("format") != CHECKPOINT_FORMAT:
+            raise ConfigError(f"{self.directory}/{step} is not an mjx-push checkpoint")
+        if meta.get("version") != CHECKPOINT_VERSION:
+            raise ConfigError(
+                f"checkpoint {self.directory}/{step} has format version {meta.get('version')}, "
+                f"this mjx-push reads version {CHECKPOINT_VERSION}"
+            )
+        try:  # read through the schema, so a field added since (with its default) is no difference
+            saved = config_dict(config_from_dict(meta.get("config", {})))
+        except ConfigError:
+            saved = meta.get("config", {})
+        diff = configio.differences(saved, config_dict(config))
+        if diff:
+            raise ConfigError(
+                f"checkpoint {self.directory}/{step} was made with a different configuration: " + "; ".join(diff[:6])
+            )
+        abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, template)
+        try:
+            state = self.manager.restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract)))[
+                "state"
+            ]
+        except Exception as e:
+            raise ConfigError(
+                f"checkpoint {self.directory}/{step} is corrupt or does not match this run's "
+                f"state (shapes, dtypes or structure): {type(e).__name__}: {str(e)[:300]}"
+            ) from None
+        return state, meta
