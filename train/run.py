@@ -21,8 +21,10 @@ run needs to continue: resuming replays the remaining batches exactly (bitwise o
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
@@ -140,11 +142,51 @@ def run(
     lock = RunLock(run_dir) if data_parallel.is_primary() else contextlib.nullcontext()
     with lock, StopOnSignal() if stop_on_signal else contextlib.nullcontext() as stop:
         return _run_locked(
-            cfg, run_dir, resume, adapter, checkpoint_every, stop_after, on_iteration, substep_chunk, stop
+            cfg,
+            run_dir,
+            resume=resume,
+            adapter=adapter,
+            checkpoint_every=checkpoint_every,
+            stop_after=stop_after,
+            on_iteration=on_iteration,
+            substep_chunk=substep_chunk,
+            stop=stop,
         )
 
 
-def _run_locked(cfg, run_dir, resume, adapter, checkpoint_every, stop_after, on_iteration, substep_chunk, stop):
+@dataclass
+class _Clock:
+    """Wall time of the batches one call of `run` trains."""
+
+    start: float = dataclasses.field(default_factory=time.perf_counter)
+    last: float = dataclasses.field(init=False)
+    first_batch_s: float | None = None
+    batches: int = 0
+
+    def __post_init__(self):
+        self.last = self.start
+
+    def tick(self) -> tuple[float, float]:
+        """-> (seconds since the previous batch, seconds since the start)."""
+        now = time.perf_counter()
+        dt, self.last = now - self.last, now
+        self.first_batch_s = dt if self.first_batch_s is None else self.first_batch_s
+        self.batches += 1
+        return dt, now - self.start
+
+
+def _run_locked(
+    cfg: RunConfig,
+    run_dir: Path,
+    *,
+    resume: bool,
+    adapter: EnvAdapter | None,
+    checkpoint_every: int,
+    stop_after: int | None,
+    on_iteration: Callable[[dict], None] | None,
+    substep_chunk: int | None,
+    stop: StopOnSignal | None,
+) -> tuple[dict, TrainState]:
     primary = data_parallel.is_primary()
     # Every process checks (what process 0 writes here, the config, none of the checks reads); the
     # others wait for the directory before they open its checkpoints.
@@ -169,28 +211,23 @@ def _run_locked(cfg, run_dir, resume, adapter, checkpoint_every, stop_after, on_
         resumed_from = int(state.env_steps)
     log = MetricLog(run_dir, resumed_from, write=primary)
 
-    t_start = time.perf_counter()
-    clock = {"last": t_start, "first": None, "done": 0}
+    clock = _Clock()
 
     def on_batch(ts: TrainState, metrics: dict) -> bool:
         """After each batch (and its evaluation): timing, logs, checkpoints; True stops the run."""
-        now = time.perf_counter()
-        dt, clock["last"] = now - clock["last"], now
-        clock["first"] = dt if clock["first"] is None else clock["first"]
-        metrics["wall_s"] = now - t_start
+        dt, metrics["wall_s"] = clock.tick()
         metrics["iteration_s"] = dt
         metrics["env_steps_per_s"] = loop.env_steps_per_iteration / dt
         metrics["updates_per_s"] = (loop.updates_per_iteration / dt) if metrics["learning"] else 0.0
         log.write(metrics)
         if on_iteration is not None and primary:
             on_iteration(metrics)
-        clock["done"] += 1
         i = int(ts.env_steps) // loop.env_steps_per_iteration - 1
         last = i == loop.num_iterations - 1
         interrupted = stop is not None and stop.requested is not None
         if last or interrupted or "eval/mean_reward" in metrics or (i + 1) % checkpoint_every == 0:
             ckpts.save(ts, cfg, {"history_rows": len(log.rows)})
-        return (interrupted or (stop_after is not None and clock["done"] >= stop_after)) and not last
+        return (interrupted or (stop_after is not None and clock.batches >= stop_after)) and not last
 
     try:
         state, _ = train_loop(None, cfg.train, adapter, callback=on_batch, state=state, runner=runner)
@@ -201,7 +238,6 @@ def _run_locked(cfg, run_dir, resume, adapter, checkpoint_every, stop_after, on_
         if stop is not None and stop.requested is not None:
             stopped.update(interrupted_at_env_steps=int(state.env_steps), signal=stop.requested)
         return stopped, state
-    first_call_s = clock["first"]
 
     scores = {
         "best_eval_mean_reward": float(state.best_eval_reward),
@@ -229,8 +265,8 @@ def _run_locked(cfg, run_dir, resume, adapter, checkpoint_every, stop_after, on_
         **scores,
         "env_steps": int(state.env_steps),
         "updates": int(state.sac.step),
-        "wall_s": time.perf_counter() - t_start,
-        "first_batch_s": first_call_s,
+        "wall_s": time.perf_counter() - clock.start,
+        "first_batch_s": clock.first_batch_s,
         "steady_env_steps_per_s": (loop.env_steps_per_iteration / np.mean(steady)) if steady else None,
         "resumed_from_env_steps": resumed_from,
         "run_dir": str(run_dir),
