@@ -45,7 +45,7 @@ _BUDGET = {
     "train.loop.eval_every_env_steps": 8_000,
     "train.loop.eval_episodes": 64,
 }
-_5CM = {"env.success_tau": 0.05, "train.replay.success_tau": 0.05}
+_5CM = {"env.success_tau": 0.05}  # the learner's relabelling radius follows it
 RUNGS: dict[str, tuple[str, str, dict]] = {
     "vpm-5cm": ("vpm", "cpu", {**_BUDGET, **_5CM}),
     "vpm-1cm": ("vpm", "cpu", _BUDGET),

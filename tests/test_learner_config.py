@@ -146,3 +146,17 @@ def test_paper_values_stay_the_field_defaults():
     assert (s.init_alpha, s.target_clip, s.bc_weight, s.actor_loss) == (1.0, False, 0.0, "sac")
     assert (d.anneal_start, d.anneal_end) == (None, None)
     assert not d.enabled and ReplayConfig().curriculum_tau is None
+
+
+def test_the_task_facts_are_set_once_on_the_environment():
+    from train import presets
+
+    base = presets.make("vpm", "cpu")
+    cfg = presets.with_overrides(base, {"env.episode_length": 30, "env.success_tau": 0.05})
+    assert (cfg.train.loop.episode_len, cfg.train.replay.success_tau) == (30, 0.05)  # the learner's copies follow
+    assert presets.override(base, **{"loop.num_envs": 16, "sac.lr": None}).train.loop.num_envs == 16
+    for copy, source in presets.TASK_FACTS.items():
+        with pytest.raises(ValueError, match=rf"--set {copy}: it is the environment's {source}.*set {source} instead"):
+            presets.with_overrides(base, {copy: 7})
+    same = presets.with_overrides(base, {"train.replay.success_tau": 0.02, "env.success_tau": 0.02})
+    assert same.train.replay.success_tau == same.env.success_tau == 0.02  # naming both, equal, is fine

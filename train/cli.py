@@ -219,16 +219,11 @@ class Train:
 
         with flag_errors(self._flag_names()):
             cfg = presets.make(self.agent, self.preset, self.seed)
-            cfg = presets.override(cfg, **{field: getattr(self, name) for name, field in self._FIELDS.items()})
+            typed = {f"train.{field}": getattr(self, name) for name, field in self._FIELDS.items()}
+            typed["env.success_tau"] = self.success_tau  # the learner's relabelling radius follows it
+            cfg = presets.with_overrides(cfg, {k: v for k, v in typed.items() if v is not None})
             if self.encoder is not None:
                 cfg = dataclasses.replace(cfg, encoder=str(self.encoder))
-            if self.success_tau is not None:  # the environment and the learner's relabelling share the radius
-                replay = dataclasses.replace(cfg.train.replay, success_tau=self.success_tau)
-                cfg = dataclasses.replace(
-                    cfg,
-                    env=dataclasses.replace(cfg.env, success_tau=self.success_tau),
-                    train=dataclasses.replace(cfg.train, replay=replay),
-                )
         if self.set:
             try:
                 cfg = presets.with_overrides(cfg, presets.parse_overrides(self.set))

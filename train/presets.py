@@ -174,18 +174,11 @@ def make(agent: str, preset: str = "cpu", seed: int = 0) -> RunConfig:
 
 
 def override(cfg: RunConfig, **fields) -> RunConfig:
-    """Replace learner fields by dotted name, e.g. override(cfg, **{"loop.num_envs": 16, "sac.lr": 3e-4});
-    None values are ignored. The preset name stays that of the base; the run's config.json holds every value."""
-    train = cfg.train
-    for dotted, value in fields.items():
-        if value is None:
-            continue
-        section, name = dotted.split(".")
-        sub = getattr(train, section, None)
-        if sub is None or not hasattr(sub, name):
-            raise ConfigError(f"unknown setting {dotted!r}")
-        train = dataclasses.replace(train, **{section: dataclasses.replace(sub, **{name: value})})
-    return dataclasses.replace(cfg, train=train)
+    """Learner fields by dotted name under ``train``, e.g. override(cfg, **{"loop.num_envs": 16,
+    "sac.lr": 3e-4}); None values are ignored. The typed command-line flags go through here, and this
+    through ``with_overrides`` (one override path). The preset name stays that of the base; the run's
+    config.json holds every value."""
+    return with_overrides(cfg, {f"train.{dotted}": value for dotted, value in fields.items() if value is not None})
 
 
 def parse_overrides(items) -> dict:
@@ -203,12 +196,23 @@ def parse_overrides(items) -> dict:
     return out
 
 
+# Facts of the task the environment defines and the (task-agnostic) learner reads a copy of: the copy
+# is always the environment's value, so a user sets each once, on the environment.
+TASK_FACTS = {"train.loop.episode_len": "env.episode_length", "train.replay.success_tau": "env.success_tau"}
+
+
 def with_overrides(cfg: RunConfig, overrides: dict) -> RunConfig:
     """``cfg`` with the fields at dotted paths (``train.sac.bc_weight``, ``env.controller.gain``, ...)
-    replaced and validated once all are set, since some must agree (the environment's and the
-    learner's success radius). Raises ValueError naming an unknown path or a bad value."""
+    replaced and validated once all are set. The learner's copies of the task's facts (TASK_FACTS)
+    follow the environment's fields; setting a copy to another value is refused, naming the field to
+    set instead. Raises ConfigError naming an unknown path or a bad value."""
     d = configio.to_dict(cfg)
+    for copy, source in TASK_FACTS.items():
+        if copy in overrides and overrides[copy] != overrides.get(source, _at(d, source)):
+            raise ConfigError(f"--set {copy}: it is the environment's {source}, copied; set {source} instead")
     for dotted, value in overrides.items():
+        if dotted in TASK_FACTS:
+            continue
         *parents, leaf = dotted.split(".")
         node = d
         for part in parents:
@@ -218,7 +222,16 @@ def with_overrides(cfg: RunConfig, overrides: dict) -> RunConfig:
         if leaf not in node:
             raise ConfigError(f"--set {dotted}: unknown setting (no field {leaf!r})")
         node[leaf] = value
+    for copy, source in TASK_FACTS.items():
+        *parents, leaf = copy.split(".")
+        _at(d, ".".join(parents))[leaf] = _at(d, source)
     return configio.from_dict(RunConfig, d, "config")
+
+
+def _at(d: dict, dotted: str):
+    for part in dotted.split("."):
+        d = d[part]
+    return d
 
 
 # --- a RunConfig on disk (config.json, checkpoint and policy records) ------------------------------
