@@ -176,7 +176,7 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
             anchor_actor_params=jax.tree.map(jnp.copy, sac_state.actor_params),
         )
 
-    collect = make_collect(config, adapter, nets, action_dim)
+    collect = make_collect(config, adapter, nets)
 
     bc = sac_cfg.bc_weight > 0
     anchored = sac_cfg.anchor_weight > 0

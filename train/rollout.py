@@ -6,7 +6,8 @@ deterministic, expert_envs, episodes=None) -> (episodes, stats)``: the policy ac
 its carry (uniform random actions during a random warm-up; the scripted expert's where ``expert_envs``),
 in lockstep (``lax.scan`` over ``adapter.step``) or, when the adapter has a ``SubstepScheduler``, each
 environment at its own pace (the same episodes, faster). With stored expert labels (demonstrations)
-the expert's noise-free action rides beside each action and comes out as ``episodes["expert_action"]``.
+each step's record holds the expert's noise-free action beside the action taken, and it comes out as
+``episodes["expert_action"]``.
 """
 
 from __future__ import annotations
@@ -61,7 +62,7 @@ def summarize(stats: dict, n: int | None = None) -> dict:
     }
 
 
-def make_collect(config: TrainConfig, adapter: EnvAdapter, nets: Networks, action_dim: int = 3):
+def make_collect(config: TrainConfig, adapter: EnvAdapter, nets: Networks):
     """``collect`` for ``config``'s learner on ``adapter`` (see the module's docstring)."""
     T = config.loop.episode_len
     demo_cfg = config.demo
@@ -71,10 +72,11 @@ def make_collect(config: TrainConfig, adapter: EnvAdapter, nets: Networks, actio
     store_labels = demo_cfg.enabled
 
     def act(actor_params, carry, obs, info, keys, random_actions, deterministic, expert_envs):
-        """Action records [N, A] (or [N, 2A] with the expert's noise-free action appended, when the
-        learner stores expert labels) of every environment from its own key ([N, 2]): uniform actions
-        during a random warm-up, the expert's (plus DemoConfig.noise) where ``expert_envs`` [N], else
-        the policy's. The carry advances in every case, so it stays in step with the observations."""
+        """The step's record of every environment, from its own key ([N, 2]): ``{"action": [N, A]}``,
+        uniform actions during a random warm-up, the expert's (plus DemoConfig.noise) where
+        ``expert_envs`` [N], else the policy's; with ``"expert_action"`` [N, A] beside it, the expert's
+        noise-free action, when the learner stores expert labels. The carry advances in every case, so
+        it stays in step with the observations."""
         k_act, k_rand = jnp.swapaxes(jax.vmap(jax.random.split)(keys), 0, 1)
         policy_action, carry = nets.act(
             actor_params,
@@ -85,13 +87,14 @@ def make_collect(config: TrainConfig, adapter: EnvAdapter, nets: Networks, actio
         )
         uniform = jax.vmap(lambda k: jax.random.uniform(k, policy_action.shape[1:], minval=-1.0, maxval=1.0))(k_rand)
         action = jnp.where(random_actions, uniform, policy_action)
+        record = {"action": action}
         if adapter.expert is not None:
             expert = adapter.expert(obs, info)
             noise = demo_cfg.noise * jax.vmap(lambda k: jax.random.normal(k, policy_action.shape[1:]))(k_rand)
-            action = jnp.where(expert_envs[:, None], jnp.clip(expert + noise, -1.0, 1.0), action)
+            record["action"] = jnp.where(expert_envs[:, None], jnp.clip(expert + noise, -1.0, 1.0), action)
             if store_labels:
-                action = jnp.concatenate([action, expert], axis=1)
-        return action, carry
+                record["expert_action"] = expert
+        return record, carry
 
     def step_keys(step_key: jax.Array, num_envs: int) -> jax.Array:
         """[N, 2]: environment i's key for the step whose key is ``step_key``."""
@@ -100,15 +103,16 @@ def make_collect(config: TrainConfig, adapter: EnvAdapter, nets: Networks, actio
     def lockstep(actor_params, env_state, obs0, info, ks, num_envs, random_actions, deterministic, expert_envs):
         def body(c, k):
             env_state, obs, carry, bad = c
-            action, carry = act(
+            record, carry = act(
                 actor_params, carry, obs, info, step_keys(k, num_envs), random_actions, deterministic, expert_envs
             )
-            env_state, obs, invalid = adapter.step(env_state, action[:, :action_dim])
-            return (env_state, obs, carry, bad | invalid), (obs, action)
+            env_state, obs, invalid = adapter.step(env_state, record["action"])
+            return (env_state, obs, carry, bad | invalid), (obs, record)
 
         init_c = (env_state, obs0, nets.init_carry(num_envs), jnp.zeros((num_envs,), bool))
-        (_, _, _, bad), (obs_seq, actions) = jax.lax.scan(body, init_c, ks)
-        return jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), obs_seq), jnp.swapaxes(actions, 0, 1), bad
+        (_, _, _, bad), (obs_seq, records) = jax.lax.scan(body, init_c, ks)
+        env_major = lambda tree: jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), tree)  # noqa: E731
+        return env_major(obs_seq), env_major(records), bad
 
     def scheduled(actor_params, env_state, obs0, info, ks, num_envs, random_actions, deterministic, expert_envs):
         """Every environment runs its own T steps: each tick advances all by ``chunk`` substeps, then
@@ -117,12 +121,12 @@ def make_collect(config: TrainConfig, adapter: EnvAdapter, nets: Networks, actio
         idx = jnp.arange(num_envs)
         keys_at = lambda t: jax.vmap(jax.random.fold_in)(ks[jnp.minimum(t, T - 1)], idx)  # noqa: E731
         t0 = jnp.zeros((num_envs,), jnp.int32)
-        action, carry = act(
+        record, carry = act(
             actor_params, nets.init_carry(num_envs), obs0, info, keys_at(t0), random_actions, deterministic, expert_envs
         )
-        env_state = sch.begin(env_state, action[:, :action_dim], jnp.ones((num_envs,), bool))
+        env_state = sch.begin(env_state, record["action"], jnp.ones((num_envs,), bool))
         obs_buf = jax.tree.map(lambda x: jnp.zeros((num_envs, T) + x.shape[1:], x.dtype), obs0)
-        act_buf = jnp.zeros((num_envs, T) + action.shape[1:], action.dtype).at[:, 0].set(action)
+        rec_buf = jax.tree.map(lambda x: jnp.zeros((num_envs, T) + x.shape[1:], x.dtype).at[:, 0].set(x), record)
 
         def put(buf, slot, rows, mask):  # buf[i, slot[i]] = rows[i] where mask[i]
             return buf.at[idx, slot].set(select_envs(mask, rows, buf[idx, slot]))
@@ -135,24 +139,24 @@ def make_collect(config: TrainConfig, adapter: EnvAdapter, nets: Networks, actio
             return jax.lax.cond(jnp.any(done), turn, lambda c, d: c, (env_state,) + c[1:], done)
 
         def turn(c, done):
-            env_state, t, carry, obs_buf, act_buf, bad = c
+            env_state, t, carry, obs_buf, rec_buf, bad = c
             env_state, obs, invalid = sch.finish(env_state, done)
             slot = jnp.minimum(t, T - 1)
             obs_buf = jax.tree.map(lambda b, o: put(b, slot, o, done), obs_buf, obs)
             bad = bad | (done & invalid)
             t = t + done.astype(jnp.int32)
             more = done & (t < T)
-            action, new_carry = act(
+            record, new_carry = act(
                 actor_params, carry, obs, info, keys_at(t), random_actions, deterministic, expert_envs
             )
             carry = select_envs(more, new_carry, carry)
-            env_state = sch.begin(env_state, action[:, :action_dim], more)
-            act_buf = put(act_buf, jnp.minimum(t, T - 1), action, more)
-            return env_state, t, carry, obs_buf, act_buf, bad
+            env_state = sch.begin(env_state, record["action"], more)
+            rec_buf = jax.tree.map(lambda b, r: put(b, jnp.minimum(t, T - 1), r, more), rec_buf, record)
+            return env_state, t, carry, obs_buf, rec_buf, bad
 
-        init_c = (env_state, t0, carry, obs_buf, act_buf, jnp.zeros((num_envs,), bool))
-        _, _, _, obs_buf, act_buf, bad = jax.lax.while_loop(lambda c: jnp.any(c[1] < T), body, init_c)
-        return obs_buf, act_buf, bad
+        init_c = (env_state, t0, carry, obs_buf, rec_buf, jnp.zeros((num_envs,), bool))
+        _, _, _, obs_buf, rec_buf, bad = jax.lax.while_loop(lambda c: jnp.any(c[1] < T), body, init_c)
+        return obs_buf, rec_buf, bad
 
     def collect(actor_params, key, num_envs: int, random_actions, deterministic, expert_envs, episodes=None):
         """One whole episode in ``num_envs`` envs -> (episode records [num_envs, ...], stats). Step t
@@ -177,7 +181,6 @@ def make_collect(config: TrainConfig, adapter: EnvAdapter, nets: Networks, actio
             deterministic,
             expert_envs,
         )
-        actions = records[..., :action_dim]
 
         def with_reset(name):  # [N, T+1, .]: the reset observation first, then the T step observations
             return jnp.concatenate([obs0[name][:, None], obs_seq[name]], axis=1)
@@ -188,14 +191,14 @@ def make_collect(config: TrainConfig, adapter: EnvAdapter, nets: Networks, actio
             "obj_xy": with_reset("obj_xy"),
             "z_goal": info["z_goal"],
             "goal_xy": info["goal_xy"],
-            "action": actions,
+            "action": records["action"],
             "valid": ~bad,
             "demo": expert_envs,
         }
         if stored_priv_dim:
             episodes["priv"] = with_reset("priv")
-        if store_labels:
-            episodes["expert_action"] = records[..., action_dim:]
+        if "expert_action" in records:
+            episodes["expert_action"] = records["expert_action"]
         return episodes, episode_stats(episodes, config.replay.success_tau)
 
     return collect
