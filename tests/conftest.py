@@ -28,6 +28,17 @@ if os.environ.get("MJX_PUSH_TEST_OPTIMIZE") != "1":
     jax.config.update("jax_disable_most_optimizations", True)
 
 
+@pytest.fixture
+def xla_optimized():
+    """This test's programs compiled with XLA's optimisations: for the few tests whose time is execution,
+    not compilation (the pushing-scene learning test: 120 s of CPU instead of 168 s, measured beside
+    other runs). Restores the suite's setting after."""
+    before = jax.config._read("jax_disable_most_optimizations")
+    jax.config.update("jax_disable_most_optimizations", False)
+    yield
+    jax.config.update("jax_disable_most_optimizations", before)
+
+
 # Longest files first. Two workers take whole files (--dist loadfile) in collection order, so a long
 # file collected last runs alone at the end: test_train_mjx.py, alphabetically last, kept one core
 # idle for its last ~4 minutes (cold run on 2 cores: 10.4 min, with these first: docs/performance.md).

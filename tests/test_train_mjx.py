@@ -91,7 +91,7 @@ def test_push_adapter_rejects_a_negative_substep_chunk():
         make_push_adapter(EnvConfig(), None, -1)
 
 
-def test_the_actor_learns_the_experts_pushes_on_the_pushing_scene(encoder_file):
+def test_the_actor_learns_the_experts_pushes_on_the_pushing_scene(encoder_file, xla_optimized):
     """Learning on the real scene, in minutes: expert demonstrations and labels (DAgger-style behaviour
     cloning), normalisation and the privileged critic must make the latent-observing actor act like
     the ground-truth expert on episodes it never saw. Breaks if the latents, the labels, the
