@@ -188,7 +188,7 @@ def contact_summary(found: list[dict]) -> dict:
     }
 
 
-def summarize(rows: list[dict]) -> dict:
+def parity_summary(rows: list[dict]) -> dict:
     import numpy as np
 
     final = np.array([r["object"][-1] for r in rows])
@@ -276,7 +276,7 @@ def main(argv=None) -> None:
         "box": [r for r in rows if r["geom_type"] == "box"],
         "cylinder": [r for r in rows if r["geom_type"] == "cylinder"],
     }
-    summary = {k: summarize(v) for k, v in groups.items() if v}
+    summary = {k: parity_summary(v) for k, v in groups.items() if v}
     if a.contacts:
         forward = jax.jit(__import__("mujoco.mjx", fromlist=["forward"]).forward)
         found = {r["episode"]: first_contact(cfg, rec, forward) for r, rec in zip(rows, recorded)}

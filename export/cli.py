@@ -140,7 +140,7 @@ class Deploy(EvalOptions):
 
         from export import sim_eval
         from export.cpu_env import CpuPushEnv
-        from export.metrics import summarize
+        from export.metrics import summarize_records
         from export.numpy_policy import NumpyPolicy
         from train.evaluate import metrics_table
 
@@ -168,7 +168,7 @@ class Deploy(EvalOptions):
             if writer is not None:
                 writer.close()
             env.close()
-        summary = summarize(records)
+        summary = summarize_records(records)
         invalid = sum(not r["valid"] for r in records)
         result = {
             "policy": str(self.policy),

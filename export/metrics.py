@@ -13,10 +13,10 @@ from train.evaluate import DISTANCE_METRICS, METRICS, summarize as summarize_arr
 from mjx_push.errors import ConfigError
 
 
-def summarize(episodes: list[dict]) -> dict:
+def summarize_records(episodes: list[dict]) -> dict:
     """{metric: {"mean", "sem", "n"}} for the paper's METRICS and the DISTANCE_METRICS the episodes hold."""
     if not episodes:
-        raise ConfigError("summarize needs at least one episode")
+        raise ConfigError("summarize_records needs at least one episode")
     per = {}
     for key in METRICS + DISTANCE_METRICS:
         if key in DISTANCE_METRICS and not all(key in ep for ep in episodes):

@@ -19,7 +19,7 @@ import pytest
 from export import masks_np
 from export import policy_file as pfile
 from export.cli import Deploy, Export
-from export.metrics import summarize
+from export.metrics import summarize_records
 from export.numpy_policy import NumpyPolicy, decode_substeps
 from mjx_push import encoder as enc
 from mjx_push import scene
@@ -501,25 +501,25 @@ def test_deploy_rejects_bad_arguments(exported, field, value, match):
 
 
 # --- metrics ---------------------------------------------------------------------------------------
-def test_summarize_mean_and_standard_error():
+def test_summarize_records_mean_and_standard_error():
     eps = [
         {"success": True, "reward": -10, "overshoot": 0, "distance": 3},
         {"success": False, "reward": -50, "overshoot": 2, "distance": 0},
         {"success": True, "reward": -20, "overshoot": 1, "distance": 0},
         {"success": True, "reward": -30, "overshoot": 1, "distance": 1},
     ]
-    s = summarize(eps)
+    s = summarize_records(eps)
     assert s["success"] == {"mean": 0.75, "sem": 0.25, "n": 4}  # sd 0.5 (ddof 1) / sqrt(4)
     assert s["reward"]["mean"] == -27.5
     assert math.isclose(s["reward"]["sem"], math.sqrt(875 / 3 / 4), rel_tol=1e-12)
     assert s["overshoot"]["mean"] == 1.0 and math.isclose(s["overshoot"]["sem"], math.sqrt(2 / 3 / 4), rel_tol=1e-12)
     assert s["distance"]["mean"] == 1.0 and math.isclose(s["distance"]["sem"], math.sqrt(6 / 3 / 4), rel_tol=1e-12)
-    one = summarize(eps[:1])
+    one = summarize_records(eps[:1])
     assert one["reward"] == {"mean": -10.0, "sem": 0.0, "n": 1}
     with pytest.raises(ValueError, match="at least one"):
-        summarize([])
+        summarize_records([])
     with pytest.raises(ValueError, match="episode 1 has no 'distance'"):
-        summarize([eps[0], {"success": True, "reward": -1, "overshoot": 0}])
+        summarize_records([eps[0], {"success": True, "reward": -1, "overshoot": 0}])
 
 
 # --- files that reference the package's encoder; shipped policies ------------------------------------

@@ -1,7 +1,7 @@
 """benchmarks/replay_parity.py's bookkeeping: where two trajectories part and which part first (no
 simulation here; the benchmark itself runs both simulators)."""
 
-from benchmarks.replay_parity import FLANGE_TOL, OBJECT_TOL, first_over, summarize
+from benchmarks.replay_parity import FLANGE_TOL, OBJECT_TOL, first_over, parity_summary
 
 
 def _row(geom, obj, flange):
@@ -30,7 +30,7 @@ def test_summary_says_what_parts_first_and_how_many_end_within_a_millimetre():
         _row("cylinder", [0.0, 2e-3, 4e-4], [0.0, 2e-4, 0.0]),  # both at step 2; object ends within 1 mm
         _row("cylinder", [0.0, 1e-5, 1e-5], [0.0, 1e-6, 1e-6]),
     ]  # never parts
-    s = summarize(rows)
+    s = parity_summary(rows)
     assert s["parts_first"] == {"flange": 1, "object": 1, "same step": 1, "neither": 1}
     assert s["within_1mm"] == 0.5
     assert s["object_parts_at_step"] == {"episodes": 3, "median": 2.0}

@@ -38,7 +38,7 @@ from train.config import TrainConfig
 from train.networks import Networks, make_networks
 from train.normalizer import RunningStats
 from train.replay import ReplayBuffer
-from train.rollout import make_collect, summarize
+from train.rollout import episode_means, make_collect
 from train.sac import SACState, init_state, make_update
 from mjx_push.errors import ConfigError
 
@@ -412,7 +412,7 @@ class Runner:
         own = ~expert if (~expert).any() else expert
         stats = {k: v[own] for k, v in stats.items()}
         return ts, {
-            **{f"train/{k}": v for k, v in summarize(stats).items()},
+            **{f"train/{k}": v for k, v in episode_means(stats).items()},
             **metrics,
             "train/expert_envs": int(expert.sum()),
         }
@@ -441,7 +441,7 @@ class Runner:
                 self.rollout(actor_params, jax.random.fold_in(key, c), *flags)[1] for c in range(t.num_eval_chunks)
             ]
             flat = {k: jnp.concatenate([c[k] for c in stats])[:n] for k in stats[0]}
-        return {**summarize(flat), **flat}
+        return {**episode_means(flat), **flat}
 
     def eval_and_select(self, ts: TrainState) -> tuple[TrainState, dict]:
         t0 = time.perf_counter()

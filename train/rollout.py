@@ -23,7 +23,7 @@ from train.networks import Networks
 
 def episode_stats(episodes: dict, success_tau: float) -> dict:
     """Per-episode sum of sparse rewards, final success, validity and the object's distance to its goal
-    at the start and the end (``summarize`` gives the means); invalid episodes count as failures with
+    at the start and the end (``episode_means`` gives the means); invalid episodes count as failures with
     the worst reward -T and no progress (their ground truth may be garbage)."""
     T = episodes["action"].shape[1]
     rewards = replay.sparse_reward(episodes["obj_xy"][:, 1:], episodes["goal_xy"][:, None], success_tau)
@@ -45,7 +45,7 @@ def episode_stats(episodes: dict, success_tau: float) -> dict:
 REPORT_RADII = (0.01, 0.02, 0.05)
 
 
-def summarize(stats: dict, n: int | None = None) -> dict:
+def episode_means(stats: dict, n: int | None = None) -> dict:
     """Means over the first ``n`` episodes of per-episode stats (all if None)."""
     s = stats["episode_success"][:n].astype(jnp.float32)
     valid = stats["episode_valid"][:n]
