@@ -95,24 +95,15 @@ def _stats(x) -> dict:
 
 def agreement(rows: list[dict]) -> dict:
     """Summary over episodes, each row {"mjx_success", "cpu_success", "mjx_final", "cpu_final",
-    "parting"} (final distances in m): success in each simulator, per-episode agreement, the
-    correlation of final distances, and the parting steps."""
-    ms = np.array([r["mjx_success"] for r in rows], bool)
-    cs = np.array([r["cpu_success"] for r in rows], bool)
-    mf = np.array([r["mjx_final"] for r in rows], np.float64)
-    cf = np.array([r["cpu_final"] for r in rows], np.float64)
-    # Pearson's r is undefined when either side is constant (one episode, or all alike).
-    corr = float(np.corrcoef(mf, cf)[0, 1]) if len(rows) > 1 and mf.std() > 0 and cf.std() > 0 else None
+    "parting"} (final distances in m): `export.metrics.agreement` (success in each simulator,
+    per-episode agreement, the correlation of final distances) and the parting steps."""
+    from export.metrics import agreement as outcome_agreement
+
     parts = {k: 0 for k in (*ORDER, "neither")}
     for r in rows:
         parts[r["parting"]["parts_first"]] += 1
     return {
-        "episodes": len(rows),
-        "mjx_success": float(ms.mean()),
-        "cpu_success": float(cs.mean()),
-        "success_agreement": float(np.mean(ms == cs)),
-        "final_distance_correlation": corr,
-        "final_distance_abs_diff_median_m": float(np.median(np.abs(mf - cf))),
+        **outcome_agreement(*([r[k] for r in rows] for k in ("mjx_success", "mjx_final", "cpu_success", "cpu_final"))),
         "first_step": {k: _stats([r["parting"]["first"][k] for r in rows if r["parting"]["first"][k]]) for k in ORDER},
         "parts_first": parts,
     }

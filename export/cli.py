@@ -217,12 +217,91 @@ def _open_video(path: Path):
         ) from None
 
 
+def _agreement_line(group: str, a: dict) -> str:
+    corr = "-" if a["final_distance_correlation"] is None else f"{a['final_distance_correlation']:.2f}"
+    return (
+        f"{group} {a['mjx_success']:.0%} / {a['cpu_success']:.0%} within the radius, same outcome in "
+        f"{a['success_agreement']:.0%}, final distances r = {corr}"
+    )
+
+
 COMMANDS = {"export": Export, "deploy": Deploy}
 
 
 @dataclasses.dataclass(kw_only=True)
 class Eval(train_cli.Eval):
     __doc__ = train_cli.Eval.__doc__
+
+    cpu: Annotated[
+        tuple[Literal["render", "analytic"], ...],
+        tyro.conf.arg(metavar="{render,analytic} ...", help_behavior_hint="(default: MJX only)"),
+    ] = ()
+    """also run the same episodes in CPU MuJoCo (the deploy path: the NumPy policy) with these mask
+    sources, and report, beside each simulator's table, how often their outcomes agree episode by
+    episode and how their final distances correlate (docs/parity.md)"""
+
+    def run(self) -> None:
+        if not self.cpu:
+            return super().run()
+        if str(self.policy) == "expert":
+            raise ConfigError("--cpu runs a trained policy's NumPy port: the scripted expert has none")
+        if len(set(self.cpu)) != len(self.cpu):
+            raise ConfigError(f"--cpu lists a mask source twice: {' '.join(self.cpu)}")
+        if "render" in self.cpu:
+            from mjx_push.renderer import renderer_available, unavailable_reason
+
+            if not renderer_available():
+                raise ConfigError(f"--cpu render: {unavailable_reason()}; or --cpu analytic")
+        record, out, res = self.evaluate()
+        record["cpu"] = self._cpu_runs(record)
+        self.write(record, out)
+        self.write_video(res)
+
+    def _cpu_runs(self, record: dict) -> dict:
+        """Each mask source's CPU MuJoCo run of the evaluation's episodes: its summary, its records and
+        its agreement with the MJX run (`export.metrics.agreement_by_shape`)."""
+        import tempfile
+
+        from rich.console import Console
+
+        from export import pretrained, sim_eval
+        from export.cpu_env import CpuPushEnv
+        from export.metrics import agreement_by_shape, summarize_records
+        from export.numpy_policy import NumpyPolicy
+        from export.policy_file import export_policy
+        from train.evaluate import metrics_table
+
+        console = Console()
+        spec = self.spec(self.batch)
+        path = pretrained.resolve(self.policy)
+        with tempfile.TemporaryDirectory() as tmp:
+            if path.suffix != ".npz":  # a run directory or saved policy: its NumPy port, as `mjx-push export` writes it
+                path = Path(tmp) / "policy.npz"
+                export_policy(self.resolve(self.policy), path, encoder="embed", provenance={"source": str(self.policy)})
+            policy = NumpyPolicy.from_file(path)
+        config = sim_eval.env_config(policy.metadata, spec)
+        if self.success_tau is not None:
+            config = dataclasses.replace(config, success_tau=self.success_tau)
+        runs = {}
+        for source in self.cpu:
+            env = CpuPushEnv(config, mask_source=source)
+            try:
+                records = sim_eval.run_episodes(policy, env, spec)
+            finally:
+                env.close()
+            summary = summarize_records(records)
+            agree = agreement_by_shape(record["per_episode"], records)
+            console.print(
+                metrics_table(f"{policy.kind} / {spec.setting} / {spec.shape} (CPU MuJoCo, {source} masks)", summary)
+            )
+            console.print(
+                "MJX vs CPU MuJoCo ("
+                + source
+                + " masks): "
+                + "; ".join(_agreement_line(g, a) for g, a in agree.items())
+            )
+            runs[source] = {"summary": summary, "agreement": agree, "episodes": records}
+        return runs
 
     def resolve(self, path: Path):
         """Also an exported .npz and a shipped policy (`pretrained:NAME`)."""

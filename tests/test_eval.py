@@ -72,8 +72,14 @@ def test_eval_cli_reports_bad_input_in_the_users_words(tmp_path, capsys):
     assert "--mass must satisfy" in capsys.readouterr().err
     assert cli_main(["eval", str(tmp_path), "--video", str(tmp_path / "v.avi")]) == 2
     assert "--video" in capsys.readouterr().err
+    assert cli_main(["eval", "expert", "--cpu", "analytic"]) == 2
+    assert "the scripted expert has none" in capsys.readouterr().err
+    assert cli_main(["eval", str(tmp_path), "--cpu", "analytic", "analytic"]) == 2
+    assert "--cpu lists a mask source twice" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         cli_main(["eval", str(tmp_path), "--shape", "sphere"])
+    with pytest.raises(SystemExit):
+        cli_main(["eval", str(tmp_path), "--cpu", "camera"])
 
 
 def test_eval_and_deploy_share_options_and_defaults():
@@ -255,6 +261,9 @@ def test_eval_cli_writes_json_and_a_video(tiny_egru_run, tmp_path):
                 str(gif),
                 "--video-episodes",
                 "1",
+                "--cpu",
+                "analytic",
+                "render",
             ]
         )
         == 0
@@ -262,6 +271,15 @@ def test_eval_cli_writes_json_and_a_video(tiny_egru_run, tmp_path):
     rec = json.loads(out.read_text())
     assert set(rec["summary"]) == {"success", "reward", "overshoot", "distance", "start_distance", "final_distance"}
     assert len(rec["per_episode"]["reward"]) == 2
+    # --cpu: the same episodes in CPU MuJoCo per mask source, with their agreement with the MJX run.
+    assert set(rec["cpu"]) == {"analytic", "render"}
+    for source, cpu in rec["cpu"].items():
+        starts = [r["start_distance"] for r in cpu["episodes"]]
+        np.testing.assert_allclose(starts, rec["per_episode"]["start_distance"], atol=1e-5, err_msg=source)
+        a = cpu["agreement"]["all"]
+        assert set(cpu["agreement"]) == {"all", "cylinders"} and a["episodes"] == 2
+        assert a["mjx_success"] == pytest.approx(rec["summary"]["success"]["mean"])
+        assert a["cpu_success"] == pytest.approx(cpu["summary"]["success"]["mean"])
     import imageio.v2 as imageio
 
     frames = imageio.mimread(gif)

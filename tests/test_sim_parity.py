@@ -56,3 +56,26 @@ def test_agreement_counts_outcomes_correlation_and_parting():
     assert s["first_step"]["latent"] == {"episodes": 0, "median": None}
     # One episode has no correlation to give.
     assert agreement(rows[:1])["final_distance_correlation"] is None
+
+
+def test_agreement_by_shape_groups_episodes_and_refuses_unequal_runs():
+    from export.metrics import agreement_by_shape
+
+    mjx = {"success": [1.0, 0.0, 1.0, 1.0], "final_distance": [0.005, 0.03, 0.008, 0.002]}
+    cpu = [
+        {"geom_type": g, "success": s, "final_distance": d}
+        for g, s, d in (
+            ("box", True, 0.004),
+            ("cylinder", True, 0.009),
+            ("box", False, 0.02),
+            ("cylinder", True, 0.001),
+        )
+    ]
+    got = agreement_by_shape(mjx, cpu)
+    assert set(got) == {"all", "cuboids", "cylinders"}
+    assert got["all"]["success_agreement"] == 0.5 and got["all"]["episodes"] == 4
+    assert got["cuboids"]["mjx_success"] == 1.0 and got["cuboids"]["cpu_success"] == 0.5
+    assert got["cylinders"]["success_agreement"] == 0.5
+    assert got["cuboids"]["final_distance_abs_diff_median_m"] == pytest.approx(0.0065)
+    with pytest.raises(ValueError, match="the MJX evaluation has 4 episodes, the CPU run 3"):
+        agreement_by_shape(mjx, cpu[:3])

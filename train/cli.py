@@ -381,8 +381,13 @@ class Eval(EvalOptions):
         return resolve_policy(path)
 
     def run(self) -> None:
-        import json
+        record, out, res = self.evaluate()
+        self.write(record, out)
+        self.write_video(res)
 
+    def evaluate(self) -> tuple[dict, Path, dict]:
+        """Check the options, evaluate in MJX and print the table: (the JSON record, where it goes, the
+        evaluation's full result)."""
         import numpy as np
         from rich.console import Console
 
@@ -439,19 +444,31 @@ class Eval(EvalOptions):
             "invalid_episodes": res["invalid_episodes"],
             "per_episode": {k: np.asarray(v).tolist() for k, v in res["per_episode"].items()},
         }
+        return record, out, res
+
+    def write(self, record: dict, out: Path) -> None:
+        import json
+
+        from rich.console import Console
+
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(json.dumps(record, indent=2) + "\n")
-        console.print(f"written {out}")
-        if self.video is not None:
-            from mjx_push import video
+        Console().print(f"written {out}")
 
-            r = video.EpisodeRenderer()
-            frames = []
-            for ep in res["recorded"]:
-                p = ep["params"]
-                frames += r.frames(ep["geom_type"], p.size, p.goal, ep["qpos"])
-            r.close()
-            console.print(f"video: {video.write(frames, self.video)} ({len(frames)} frames)")
+    def write_video(self, res: dict) -> None:
+        if self.video is None:
+            return
+        from rich.console import Console
+
+        from mjx_push import video
+
+        r = video.EpisodeRenderer()
+        frames = []
+        for ep in res["recorded"]:
+            p = ep["params"]
+            frames += r.frames(ep["geom_type"], p.size, p.goal, ep["qpos"])
+        r.close()
+        Console().print(f"video: {video.write(frames, self.video)} ({len(frames)} frames)")
 
 
 @dataclasses.dataclass
