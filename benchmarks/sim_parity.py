@@ -47,7 +47,7 @@ ORDER = ("latent", "action", "flange", "object")
 
 def parse(argv=None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("policies", nargs="+", help="exported .npz files or pretrained:NAME")
+    ap.add_argument("policies", nargs="*", help="exported .npz files or pretrained:NAME")
     ap.add_argument("--episodes", type=int, default=100)
     ap.add_argument("--setting", default="standard")
     ap.add_argument("--shape", default="all")
@@ -56,7 +56,17 @@ def parse(argv=None) -> argparse.Namespace:
     ap.add_argument("--masks", nargs="+", default=["analytic", "render"], choices=["analytic", "render"])
     ap.add_argument("--obs-noise", type=float, help="flange-xy observation noise in both (default: the policy's)")
     ap.add_argument("--out", type=Path, default=Path("outputs/bench_sim_parity.json"))
+    ap.add_argument(
+        "--floor",
+        nargs=2,
+        type=Path,
+        metavar=("A.json", "B.json"),
+        help="run nothing: each simulator against itself over two of this benchmark's JSONs of the same "
+        "policies and episodes that differ in --obs-noise (the agreement a sub-millimetre perturbation leaves)",
+    )
     a = ap.parse_args(argv)
+    if not a.policies and a.floor is None:
+        ap.error("give POLICY ... to compare the simulators, or --floor A.json B.json")
     if a.episodes < 1 or a.batch < 1:
         ap.error("--episodes and --batch must be >= 1")
     if a.obs_noise is not None and not a.obs_noise >= 0:
@@ -306,8 +316,46 @@ def print_tables(results: list[dict]) -> None:
             )
 
 
+def floor(a: dict, b: dict) -> list[dict]:
+    """Each simulator against itself: for every policy and mask source in both runs `a` and `b` (this
+    benchmark's JSONs over the same episodes), `export.metrics.agreement` of one run's outcomes with
+    the other's, per simulator ("mjx" once, from the analytic entry; "cpu" per mask source)."""
+    from export.metrics import agreement as outcome_agreement
+
+    rows = []
+    for ra, rb in zip(a["results"], b["results"]):
+        if ra["policy"] != rb["policy"]:
+            raise ValueError(f"the two runs hold different policies: {ra['policy']} against {rb['policy']}")
+        for source in [s for s in ("analytic", "render") if s in ra and s in rb]:
+            ea, eb = ra[source]["episodes"], rb[source]["episodes"]
+            if [e["episode"] for e in ea] != [e["episode"] for e in eb]:
+                raise ValueError(f"{ra['policy']} {source}: the two runs hold different episodes")
+            for sim in ("mjx", "cpu") if source == "analytic" else ("cpu",):
+                got = outcome_agreement(
+                    *([e[f"{sim}_{k}"] for e in ep] for ep in (ea, eb) for k in ("success", "final"))
+                )
+                name = "MJX" if sim == "mjx" else f"CPU MuJoCo, {source} masks"
+                rows.append(
+                    {"policy": ra["policy"], "simulator": name, "noise": [ra["obs_noise"], rb["obs_noise"]], **got}
+                )
+    return rows
+
+
 def main(argv=None) -> None:
     args = parse(argv)
+    if args.floor is not None:
+        rows = floor(*(json.loads(p.read_text()) for p in args.floor))
+        for r in rows:
+            corr = "-" if r["final_distance_correlation"] is None else f"{r['final_distance_correlation']:.2f}"
+            print(
+                f"{r['policy']:<18} {r['simulator']:<26} obs noise {r['noise'][0]:g} vs {r['noise'][1]:g} m: same "
+                f"outcome {r['success_agreement']:.0%}, final distances r = {corr}, "
+                f"|Δ final| median {1e3 * r['final_distance_abs_diff_median_m']:.1f} mm"
+            )
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps({"floor": [str(p) for p in args.floor], "rows": rows}, indent=1) + "\n")
+        print(f"written {args.out}")
+        return
     results = [compare(p, args) for p in args.policies]
     print_tables(results)
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -79,3 +79,40 @@ def test_agreement_by_shape_groups_episodes_and_refuses_unequal_runs():
     assert got["cuboids"]["final_distance_abs_diff_median_m"] == pytest.approx(0.0065)
     with pytest.raises(ValueError, match="the MJX evaluation has 4 episodes, the CPU run 3"):
         agreement_by_shape(mjx, cpu[:3])
+
+
+def test_floor_compares_each_simulator_with_itself_across_two_runs():
+    from benchmarks.sim_parity import floor
+
+    def run(noise, mjx, cpu):
+        eps = [
+            {"episode": i, "mjx_success": m, "mjx_final": 0.02 * (1 - m) + 0.001 * i, "cpu_success": c,
+             "cpu_final": 0.02 * (1 - c) + 0.002 * i}
+            for i, (m, c) in enumerate(zip(mjx, cpu))
+        ]  # fmt: skip
+        return {"results": [{"policy": "p", "obs_noise": noise, "analytic": {"episodes": eps}}]}
+
+    a, b = run(0.0, [1, 1, 0, 0], [1, 0, 0, 1]), run(1e-4, [1, 0, 0, 0], [1, 0, 0, 1])
+    rows = floor(a, b)
+    assert [(r["simulator"], r["success_agreement"]) for r in rows] == [
+        ("MJX", 0.75),
+        ("CPU MuJoCo, analytic masks", 1.0),
+    ]
+    assert rows[1]["final_distance_abs_diff_median_m"] == 0.0 and rows[0]["noise"] == [0.0, 1e-4]
+    b["results"][0]["analytic"]["episodes"].pop()
+    with pytest.raises(ValueError, match="different episodes"):
+        floor(a, b)
+
+
+def test_mask_gap_counts_each_sides_pixels_and_the_shift():
+    from benchmarks.mask_gap import gap
+
+    a = np.zeros((8, 8), bool)
+    a[2:4, 2:4] = True
+    r = a.copy()
+    r[2:4, 4] = True  # the render sees one more column
+    g = gap(r, a)
+    assert (g["render_only"], g["analytic_only"], g["analytic_pixels"]) == (2, 0, 4)
+    assert g["iou"] == pytest.approx(4 / 6) and g["centroid_shift"] == pytest.approx([0.0, 0.5])
+    with pytest.raises(ValueError, match="non-empty masks"):
+        gap(np.zeros((8, 8), bool), a)
