@@ -217,6 +217,49 @@ def _open_video(path: Path):
         ) from None
 
 
+@dataclasses.dataclass
+class Reproduce(train_cli.Reproduce):
+    __doc__ = train_cli.Reproduce.__doc__
+
+    cpu: Annotated[
+        tuple[Literal["render", "analytic"], ...],
+        tyro.conf.arg(metavar="{render,analytic} ...", help_behavior_hint="(default: MJX only)"),
+    ] = ()
+    """also evaluate every finished agent and seed in CPU MuJoCo (its NumPy port) on the same episodes
+    with these mask sources, and write OUT/report-parity.md: both simulators' success side by side,
+    per-episode agreement, correlation of final distances (cached next to each run)"""
+
+    def run(self) -> None:
+        if self.cpu:
+            if len(set(self.cpu)) != len(self.cpu):
+                raise ConfigError(f"--cpu lists a mask source twice: {' '.join(self.cpu)}")
+            if self.plan is not None or self.job == "expert":
+                raise ConfigError("--cpu evaluates trained agents: not with --plan or --job expert")
+            if "render" in self.cpu:
+                from mjx_push.renderer import renderer_available, unavailable_reason
+
+                if not renderer_available():
+                    raise ConfigError(f"--cpu render: {unavailable_reason()}; or --cpu analytic")
+        super().run()
+        if not self.cpu:
+            return
+        from rich.console import Console
+
+        from export.report_parity import parity_report
+        from train import reproduce as rep
+
+        if self.job is not None:
+            agent, _, seed = self.job.partition(":")
+            runs = [(agent, int(seed))]
+        else:
+            runs = [(a, s) for s in range(self.seeds) for a in self.agents]
+        out = self.out or Path(f"outputs/reproduce-{self.budget}")
+        episodes = self.episodes or rep.EVAL_EPISODES[self.budget]
+        console = Console()
+        path = parity_report(out, runs, rep.PAPER_SHAPES, "difficult", episodes, tuple(self.cpu), log=console.print)
+        console.print(path.read_text(), markup=False, soft_wrap=True)
+
+
 def _agreement_line(group: str, a: dict) -> str:
     corr = "-" if a["final_distance_correlation"] is None else f"{a['final_distance_correlation']:.2f}"
     return (
@@ -319,7 +362,7 @@ class Eval(train_cli.Eval):
 
 def main(argv: list[str] | None = None) -> int:
     """The `mjx-push` entry point."""
-    commands = {**train_cli.COMMANDS, "eval": Eval, **COMMANDS}
+    commands = {**train_cli.COMMANDS, "eval": Eval, "reproduce": Reproduce, **COMMANDS}
     from mjx_push import xla
     from train import compile_cache
 

@@ -476,3 +476,45 @@ def test_reproduce_restarts_a_run_killed_before_its_first_checkpoint(tmp_path, m
     lines: list[str] = []
     rep.train_or_reuse(cfg, run_dir, lines.append)
     assert calls == [(run_dir, False, [])] and "stopped before its first checkpoint" in lines[0]
+
+
+def test_reproduce_cpu_evaluates_each_run_on_its_mjx_episodes_and_caches_it(tiny_egru_run, evaluator, tmp_path):
+    import shutil
+
+    from export.report_parity import cpu_evaluation, parity_report
+    from train import reproduce as rep
+
+    cfg, d, _, _ = tiny_egru_run
+    out = tmp_path / "repro"
+    run_dir = out / "runs" / "egru-s0"
+    shutil.copytree(d, run_dir)
+    rep.agent_job("smoke", "egru", 0, out, 2, ("cylinder",), "difficult", config_hook=lambda _: cfg, train=False)
+    mjx = json.loads((run_dir / "eval-difficult-cylinder-2.json").read_text())
+    lines: list[str] = []
+    path = parity_report(out, [("egru", 0), ("vpm", 0)], ("cylinder",), "difficult", 2, ("analytic",), lines.append)
+    cpu = json.loads((run_dir / "eval-cpu-analytic-difficult-cylinder-2.json").read_text())
+    # The CPU run meets the MJX evaluation's episodes, and its agreement reads both runs' outcomes.
+    np.testing.assert_allclose(
+        [r["start_distance"] for r in cpu["records"]], mjx["per_episode"]["start_distance"], atol=1e-5
+    )
+    a = cpu["agreement"]["all"]
+    assert a["episodes"] == 2 and a["mjx_success"] == pytest.approx(mjx["summary"]["success"]["mean"])
+    assert a["cpu_success"] == pytest.approx(cpu["summary"]["success"]["mean"])
+    text = path.read_text()
+    assert "| cylinder | eGRU | analytic |" in text and "Not finished, so not in this table: vpm-s0." in text
+    assert not any("reusing" in line for line in lines)
+    lines.clear()
+    cpu_evaluation(run_dir, "difficult", "cylinder", 2, "analytic", lines.append)
+    assert any("reusing evaluation" in line for line in lines)
+    with pytest.raises(ValueError, match="no MJX evaluation to compare with"):
+        cpu_evaluation(run_dir, "difficult", "square", 2, "analytic")
+    with pytest.raises(ValueError, match="no finished run"):
+        parity_report(out, [("vpm", 0)], ("cylinder",), "difficult", 2, ("analytic",))
+
+
+def test_reproduce_cpu_refuses_what_it_cannot_evaluate(tmp_path, capsys):
+    assert cli_main(["reproduce", "--plan", str(tmp_path / "plan.txt"), "--cpu", "analytic"]) == 2
+    assert "--cpu evaluates trained agents: not with --plan or --job expert" in capsys.readouterr().err
+    assert cli_main(["reproduce", "--cpu", "render", "render"]) == 2
+    assert "--cpu lists a mask source twice" in capsys.readouterr().err
+    assert not (tmp_path / "plan.txt").exists()
