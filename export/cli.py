@@ -217,29 +217,37 @@ def _open_video(path: Path):
         ) from None
 
 
+# `--cpu render analytic` of eval and reproduce: the mask sources of a CPU MuJoCo run beside the MJX one.
+CpuMasks = Annotated[
+    tuple[Literal["render", "analytic"], ...],
+    tyro.conf.arg(metavar="{render,analytic} ...", help_behavior_hint="(default: MJX only)"),
+]
+
+
+def _check_cpu(sources: tuple[str, ...]) -> None:
+    if len(set(sources)) != len(sources):
+        raise ConfigError(f"--cpu lists a mask source twice: {' '.join(sources)}")
+    if "render" in sources:
+        from mjx_push.renderer import renderer_available, unavailable_reason
+
+        if not renderer_available():
+            raise ConfigError(f"--cpu render: {unavailable_reason()}; or --cpu analytic")
+
+
 @dataclasses.dataclass
 class Reproduce(train_cli.Reproduce):
     __doc__ = train_cli.Reproduce.__doc__
 
-    cpu: Annotated[
-        tuple[Literal["render", "analytic"], ...],
-        tyro.conf.arg(metavar="{render,analytic} ...", help_behavior_hint="(default: MJX only)"),
-    ] = ()
+    cpu: CpuMasks = ()
     """also evaluate every finished agent and seed in CPU MuJoCo (its NumPy port) on the same episodes
     with these mask sources, and write OUT/report-parity.md: both simulators' success side by side,
     per-episode agreement, correlation of final distances (cached next to each run)"""
 
     def run(self) -> None:
         if self.cpu:
-            if len(set(self.cpu)) != len(self.cpu):
-                raise ConfigError(f"--cpu lists a mask source twice: {' '.join(self.cpu)}")
             if self.plan is not None or self.job == "expert":
                 raise ConfigError("--cpu evaluates trained agents: not with --plan or --job expert")
-            if "render" in self.cpu:
-                from mjx_push.renderer import renderer_available, unavailable_reason
-
-                if not renderer_available():
-                    raise ConfigError(f"--cpu render: {unavailable_reason()}; or --cpu analytic")
+            _check_cpu(self.cpu)
         super().run()
         if not self.cpu:
             return
@@ -275,10 +283,7 @@ COMMANDS = {"export": Export, "deploy": Deploy}
 class Eval(train_cli.Eval):
     __doc__ = train_cli.Eval.__doc__
 
-    cpu: Annotated[
-        tuple[Literal["render", "analytic"], ...],
-        tyro.conf.arg(metavar="{render,analytic} ...", help_behavior_hint="(default: MJX only)"),
-    ] = ()
+    cpu: CpuMasks = ()
     """also run the same episodes in CPU MuJoCo (the deploy path: the NumPy policy) with these mask
     sources, and report, beside each simulator's table, how often their outcomes agree episode by
     episode and how their final distances correlate (docs/parity.md)"""
@@ -288,13 +293,7 @@ class Eval(train_cli.Eval):
             return super().run()
         if str(self.policy) == "expert":
             raise ConfigError("--cpu runs a trained policy's NumPy port: the scripted expert has none")
-        if len(set(self.cpu)) != len(self.cpu):
-            raise ConfigError(f"--cpu lists a mask source twice: {' '.join(self.cpu)}")
-        if "render" in self.cpu:
-            from mjx_push.renderer import renderer_available, unavailable_reason
-
-            if not renderer_available():
-                raise ConfigError(f"--cpu render: {unavailable_reason()}; or --cpu analytic")
+        _check_cpu(self.cpu)
         record, out, res = self.evaluate()
         record["cpu"] = self._cpu_runs(record)
         self.write(record, out)
