@@ -302,35 +302,23 @@ class Eval(train_cli.Eval):
     def _cpu_runs(self, record: dict) -> dict:
         """Each mask source's CPU MuJoCo run of the evaluation's episodes: its summary, its records and
         its agreement with the MJX run (`export.metrics.agreement_by_shape`)."""
-        import tempfile
-
         from rich.console import Console
 
         from export import pretrained, sim_eval
-        from export.cpu_env import CpuPushEnv
         from export.metrics import agreement_by_shape, summarize_records
         from export.numpy_policy import NumpyPolicy
-        from export.policy_file import export_policy
         from train.evaluate import metrics_table
 
         console = Console()
         spec = self.spec(self.batch)
         path = pretrained.resolve(self.policy)
-        with tempfile.TemporaryDirectory() as tmp:
-            if path.suffix != ".npz":  # a run directory or saved policy: its NumPy port, as `mjx-push export` writes it
-                path = Path(tmp) / "policy.npz"
-                export_policy(self.resolve(self.policy), path, encoder="embed", provenance={"source": str(self.policy)})
+        if path.suffix == ".npz":
             policy = NumpyPolicy.from_file(path)
-        config = sim_eval.env_config(policy.metadata, spec)
-        if self.success_tau is not None:
-            config = dataclasses.replace(config, success_tau=self.success_tau)
+        else:  # a run directory or saved policy: its NumPy port
+            policy = NumpyPolicy.from_policy(self.resolve(self.policy), {"source": str(self.policy)})
         runs = {}
         for source in self.cpu:
-            env = CpuPushEnv(config, mask_source=source)
-            try:
-                records = sim_eval.run_episodes(policy, env, spec)
-            finally:
-                env.close()
+            records = sim_eval.run_cpu(policy, spec, source, self.success_tau)
             summary = summarize_records(records)
             agree = agreement_by_shape(record["per_episode"], records)
             console.print(

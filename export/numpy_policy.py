@@ -99,6 +99,19 @@ class NumpyPolicy:
         """`use_blas`: encoder convolutions through BLAS (fastest with OPENBLAS_NUM_THREADS=1, see above)."""
         return cls(load_npz(path), use_blas)
 
+    @classmethod
+    def from_policy(cls, policy, provenance: dict | None = None) -> NumpyPolicy:
+        """The NumPy port of a `train.policies.Policy`, through the file `mjx-push export` writes (so it
+        is exactly what a user would deploy)."""
+        import tempfile
+
+        from export.policy_file import export_policy
+
+        with tempfile.TemporaryDirectory() as tmp:
+            path = Path(tmp) / "policy.npz"
+            export_policy(policy, path, provenance=provenance)
+            return cls.from_file(path)
+
     @property
     def recurrent(self) -> bool:
         return self.kind in ("ugru", "egru")

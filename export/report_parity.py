@@ -11,7 +11,6 @@ composes the two.
 from __future__ import annotations
 
 import json
-import tempfile
 from pathlib import Path
 from typing import Callable
 
@@ -29,15 +28,13 @@ SOURCES = ("render", "analytic")
 def cpu_evaluation(run_dir: Path, setting: str, shape: str, episodes: int, source: str, log: Callable = print) -> dict:
     """The CPU MuJoCo run (mask `source`) of the episodes of the run's cached MJX evaluation, with its
     summary and its agreement with that evaluation: {"summary", "agreement", "records", ...}."""
-    from export.cpu_env import CpuPushEnv
     from export.numpy_policy import NumpyPolicy
-    from export.policy_file import export_policy
 
     if source not in SOURCES:
         raise ConfigError(f"mask source must be one of {SOURCES}, got {source!r}")
     run_dir = Path(run_dir)
     mjx_path = run_dir / f"eval-{setting}-{shape}-{episodes}.json"
-    mjx = rep._read_cache(mjx_path)
+    mjx = rep.read_cache(mjx_path)
     if not mjx.get("per_episode") or not mjx.get("policy"):
         raise ConfigError(f"{mjx_path}: no MJX evaluation to compare with (run mjx-push reproduce first)")
     fingerprint = rep.policy_fingerprint(run_dir / mjx["policy"])
@@ -46,21 +43,13 @@ def cpu_evaluation(run_dir: Path, setting: str, shape: str, episodes: int, sourc
             f"{mjx_path} belongs to other weights than {run_dir / mjx['policy']}: rerun mjx-push reproduce"
         )
     path = run_dir / f"eval-cpu-{source}-{setting}-{shape}-{episodes}.json"
-    cached = rep._read_cache(path)
+    cached = rep.read_cache(path)
     if cached.get("policy_sha256") == fingerprint and cached.get("spec") == mjx["spec"] and cached.get("records"):
         log(f"reusing evaluation {path}")
         return cached
     spec = EvalSpec(**{**mjx["spec"], "record": 0})
-    with tempfile.TemporaryDirectory() as tmp:
-        npz = Path(tmp) / "policy.npz"
-        export_policy(policies.load_policy(run_dir / mjx["policy"]), npz, provenance={"source": str(run_dir)})
-        policy = NumpyPolicy.from_file(npz)
-    config = sim_eval.env_config(policy.metadata, spec)
-    env = CpuPushEnv(config, mask_source=source)
-    try:
-        records = sim_eval.run_episodes(policy, env, spec)
-    finally:
-        env.close()
+    policy = NumpyPolicy.from_policy(policies.load_policy(run_dir / mjx["policy"]), {"source": str(run_dir)})
+    records = sim_eval.run_cpu(policy, spec, source)
     result = {
         "policy": mjx["policy"],
         "policy_sha256": fingerprint,
@@ -112,7 +101,7 @@ def parity_report(
         "trained) and in CPU MuJoCo (its NumPy port, as `mjx-push deploy` runs it), success within the radius",
         "it trained for. Means over the training seeds, each seed's value in brackets. `same outcome`: the",
         "episodes that succeed or fail in both; `r`: the correlation of the final object-goal distances.",
-        "One simulator against itself under a 0.1 mm perturbation agrees on 73-89 % of episodes (docs/parity.md).",
+        "How far one simulator agrees with itself under a sub-millimetre perturbation: docs/parity.md.",
         "",
         "| shape | agent | masks | MJX | CPU MuJoCo | same outcome | r |",
         "|---|---|---|---|---|---|---|",
@@ -120,16 +109,16 @@ def parity_report(
     for shape in shapes:
         for agent in dict.fromkeys(a for a, _, _, _, _ in rows):
             for source in sources:
-                cell = [(s, a) for g, s, sh, so, a in rows if g == agent and sh == shape and so == source]
+                cell = [a for g, _, sh, so, a in rows if g == agent and sh == shape and so == source]
                 if not cell:
                     continue
 
                 def pct(key):
-                    vals = [a[key] for _, a in cell]
+                    vals = [a[key] for a in cell]
                     each = f" ({', '.join(f'{100 * v:.0f}' for v in vals)})" if len(vals) > 1 else ""
                     return f"{100 * sum(vals) / len(vals):.0f} %{each}"
 
-                corr = [a["final_distance_correlation"] for _, a in cell if a["final_distance_correlation"] is not None]
+                corr = [a["final_distance_correlation"] for a in cell if a["final_distance_correlation"] is not None]
                 r = f"{sum(corr) / len(corr):.2f}" if corr else "-"
                 lines.append(
                     f"| {SHAPE_NAMES.get(shape, shape)} | {AGENT_NAMES.get(agent, agent)} | {source} | "

@@ -51,6 +51,21 @@ def env_config(metadata: dict, spec) -> EnvConfig:
     return dataclasses.replace(base, objects=dataclasses.replace(objects_cfg, shape=shape))
 
 
+def run_cpu(policy, spec, mask_source: str, success_tau: float | None = None) -> list[dict]:
+    """`run_episodes` of a `NumpyPolicy` in a `CpuPushEnv` of `env_config(policy.metadata, spec)` with
+    `mask_source` masks, scored at `success_tau` (default: the radius the policy trained for)."""
+    from export.cpu_env import CpuPushEnv
+
+    config = env_config(policy.metadata, spec)
+    if success_tau is not None:
+        config = dataclasses.replace(config, success_tau=success_tau)
+    env = CpuPushEnv(config, mask_source=mask_source)
+    try:
+        return run_episodes(policy, env, spec)
+    finally:
+        env.close()
+
+
 GOAL_TINT = np.array([0, 90, 0], np.uint8)  # goal silhouette drawn faintly green in the under-table view
 
 

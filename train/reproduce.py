@@ -97,7 +97,7 @@ def evaluate_run(cfg: presets.RunConfig, run_dir: Path, spec: EvalSpec, log: Cal
     fingerprint = policy_fingerprint(run_dir / name)
     spec_record = dataclasses.asdict(spec)
     if path.is_file():
-        cached = _read_cache(path)
+        cached = read_cache(path)
         per = cached.get("per_episode", {})
         if (
             cached.get("policy_sha256") == fingerprint
@@ -122,7 +122,7 @@ def evaluate_run(cfg: presets.RunConfig, run_dir: Path, spec: EvalSpec, log: Cal
     return res["summary"]
 
 
-def _read_cache(path: Path) -> dict:
+def read_cache(path: Path) -> dict:
     """A cached evaluation's record; {} when missing or damaged (it is then recomputed)."""
     try:
         return json.loads(path.read_text())
@@ -143,7 +143,7 @@ def expert_job(
         spec = EvalSpec(setting=setting, shape=shape, episodes=episodes, batch=min(episodes, 20))
         path = Path(out) / "expert" / f"eval-{spec.setting}-{spec.shape}-{spec.episodes}.json"
         want = {"spec": json.loads(json.dumps(dataclasses.asdict(spec))), "settings": key}
-        cached = _read_cache(path)
+        cached = read_cache(path)
         if {k: cached.get(k) for k in want} == want:
             log(f"reusing evaluation {path}")
             summaries[shape] = summarize({k: np.asarray(v) for k, v in cached["per_episode"].items()})
