@@ -518,3 +518,39 @@ def test_reproduce_cpu_refuses_what_it_cannot_evaluate(tmp_path, capsys):
     assert cli_main(["reproduce", "--cpu", "render", "render"]) == 2
     assert "--cpu lists a mask source twice" in capsys.readouterr().err
     assert not (tmp_path / "plan.txt").exists()
+
+
+def test_reproduce_trains_a_finished_run_of_a_smaller_budget_longer(tmp_path, monkeypatch, capsys):
+    """--total-env-steps above a finished run's: reproduce resumes that run for the longer total (the
+    run itself: tests/test_run.py), reports only runs of that total, and its plan carries the flag."""
+    from train import presets
+    from train import reproduce as rep
+    from train import run as run_mod
+
+    cfg = presets.make("vpm", "smoke")
+    run_dir = tmp_path / "runs" / "vpm-s0"
+    run_dir.mkdir(parents=True)
+    (run_dir / "config.json").write_text(json.dumps(presets.config_dict(cfg)))
+    (run_dir / "summary.json").write_text("{}")
+    (run_dir / "best_policy.msgpack").write_bytes(b"")
+    total = cfg.train.loop.total_env_steps
+    longer = rep.budget_config("smoke", "vpm", 0, 2 * total)
+    assert longer.train.loop.total_env_steps == 2 * total
+    assert rep.is_finished(run_dir) and rep.is_finished(run_dir, total) and not rep.is_finished(run_dir, 2 * total)
+    calls = []
+    monkeypatch.setattr(run_mod, "run", lambda c, d, resume: calls.append((c, d, resume)))
+    lines: list[str] = []
+    rep.train_or_reuse(longer, run_dir, lines.append)
+    assert calls == [(longer, run_dir, True)] and f"longer: {2 * total:,} env steps" in lines[0]
+    other = presets.with_overrides(longer, {"train.sac.lr": 3e-4})
+    with pytest.raises(ValueError, match="another configuration"):
+        rep.train_or_reuse(other, run_dir, lines.append)
+    with pytest.raises(ValueError, match="no finished run"):  # the run has not been trained longer yet
+        rep.reproduce(
+            "smoke", 1, tmp_path, episodes=2, agents=("vpm",), report_only=True, expert=False, total_env_steps=2 * total
+        )
+    assert rep.plan("cpu-long", 1, tmp_path, ("vpm",), total_env_steps=128000)[0] == (
+        f"mjx-push reproduce --budget cpu-long --out {tmp_path} --total-env-steps 128000 --job vpm:0"
+    )
+    assert cli_main(["reproduce", "--total-env-steps", "0", "--plan", str(tmp_path / "p.txt")]) == 2
+    assert "--total-env-steps must be" in capsys.readouterr().err

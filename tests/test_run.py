@@ -59,6 +59,57 @@ def test_killed_and_resumed_run_equals_an_uninterrupted_one(full_run, tmp_path, 
     assert [int(float(r["env_steps"])) for r in rows] == list(range(40, 201, 40))
 
 
+def _with_total(cfg, total, **sac):
+    loop = dataclasses.replace(cfg.train.loop, total_env_steps=total)
+    return dataclasses.replace(
+        cfg, train=dataclasses.replace(cfg.train, loop=loop, sac=dataclasses.replace(cfg.train.sac, **sac))
+    )
+
+
+def test_a_finished_run_trained_longer_equals_a_run_of_that_length(full_run, tmp_path, toy, capsys):
+    """`--resume` with a larger total: the run of 160 env steps, trained on to 200, holds exactly the
+    state of the uninterrupted 200-step run (its evaluations fall on the same steps)."""
+    cfg, _, _, full_state = full_run
+    d = tmp_path / "short"
+    short, _ = run_mod.run(_with_total(cfg, 160), d, adapter=toy, checkpoint_every=2)
+    assert short["env_steps"] == 160 and (d / "summary.json").is_file()
+    summary, state = run_mod.run(cfg, d, adapter=toy, resume=True)
+    assert summary["trained_longer_from_env_steps"] == 160 and summary["resumed_from_env_steps"] == 160
+    for (path, a), b in zip(
+        jax.tree_util.tree_leaves_with_path(jax.device_get(state)), jax.tree_util.tree_leaves(full_state)
+    ):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b), err_msg=jax.tree_util.keystr(path))
+    assert json.loads((d / "config.json").read_text())["train"]["loop"]["total_env_steps"] == 200
+    assert json.loads((d / "summary.json").read_text())["env_steps"] == 200
+    with (d / "metrics.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert [int(float(r["env_steps"])) for r in rows] == list(range(40, 201, 40))
+    assert [int(float(r["env_steps"])) for r in rows if r.get("eval/mean_reward")] == [80, 160, 200]
+    assert policies.load_policy(d / "final_policy").scores["env_steps"] == 200
+    # Shorter, or anything else changed, or a learning rate decayed over the old length: refused.
+    with pytest.raises(ValueError, match="different configuration: train.loop.total_env_steps"):
+        run_mod.run(_with_total(cfg, 120), d, adapter=toy, resume=True)
+    with pytest.raises(ValueError, match=r"different configuration: .*train\.sac\.lr"):
+        run_mod.run(_with_total(cfg, 240, lr=3e-4), d, adapter=toy, resume=True)
+    decayed = tmp_path / "decayed"
+    import shutil
+
+    shutil.copytree(d, decayed)
+    rec = json.loads((decayed / "config.json").read_text())
+    rec["train"]["sac"]["lr_decay"] = True
+    (decayed / "config.json").write_text(json.dumps(rec))
+    with pytest.raises(ValueError, match="lr_decay"):
+        run_mod.run(_with_total(cfg, 240, lr_decay=True), decayed, adapter=toy, resume=True)
+    assert (decayed / "summary.json").is_file()  # refused before anything changed
+    # The command line: only --total-env-steps goes with --resume, and only upwards.
+    assert cli_main(["train", "--resume", "--run-dir", str(d), "--total-env-steps", "120"]) == 2
+    assert "longer, not shorter" in capsys.readouterr().err
+    assert cli_main(["train", "--resume", "--run-dir", str(d), "--total-env-steps", "240", "--lr", "0.1"]) == 2
+    assert "only --total-env-steps" in capsys.readouterr().err
+    assert cli_main(["train", "--resume", "--run-dir", str(d), "--total-env-steps", "200"]) == 0
+    assert "has finished" in capsys.readouterr().out
+
+
 def test_run_writes_logs_checkpoints_and_policies(full_run):
     cfg, d, summary, state = full_run
     with (d / "metrics.csv").open() as f:

@@ -70,7 +70,9 @@ class Checkpoints:
             saved = config_dict(config_from_dict(meta.get("config", {})))
         except ConfigError:
             saved = meta.get("config", {})
-        diff = configio.differences(saved, config_dict(config))
+        mine = config_dict(config)
+        # A run trained longer (`train.run.run`) restores the checkpoints of its shorter self.
+        diff = [] if configio.trained_longer(saved, mine) else configio.differences(saved, mine)
         if diff:
             raise ConfigError(
                 f"checkpoint {self.directory}/{step} was made with a different configuration: " + "; ".join(diff[:6])

@@ -157,7 +157,8 @@ class Train:
     ] = None
     """where the run's config, logs, checkpoints and policies go"""
     resume: Annotated[bool, tyro.conf.arg(help_behavior_hint="")] = False
-    """continue the run in --run-dir from its latest checkpoint (same configuration required)"""
+    """continue the run in --run-dir from its latest checkpoint (same configuration required; with a
+    larger --total-env-steps, finished or not, train it longer)"""
     encoder: Annotated[
         Path | None, tyro.conf.arg(metavar="PATH", help_behavior_hint="(default: the shipped pretrained encoder)")
     ] = None
@@ -264,16 +265,27 @@ class Train:
                     + ("" if self.run_dir else " (the default for these --agent/--preset/--seed; pass --run-dir)")
                 )
             cfg = presets.load_config(run_dir / "config.json")
+            others = [n for n in self._overrides() if n != "total_env_steps"]
+            if others:
+                raise ConfigError(
+                    "--resume continues the saved configuration (only --total-env-steps may train it "
+                    f"longer); drop the other settings ({', '.join('--' + n.replace('_', '-') for n in others)})"
+                )
+            if self.total_env_steps is not None and self.total_env_steps != cfg.train.loop.total_env_steps:
+                if self.total_env_steps < cfg.train.loop.total_env_steps:
+                    raise ConfigError(
+                        f"--total-env-steps {self.total_env_steps:,} with --resume: the run in {run_dir} "
+                        f"trains for {cfg.train.loop.total_env_steps:,} env steps; --resume can train it "
+                        "longer, not shorter"
+                    )
+                with flag_errors(self._flag_names()):
+                    cfg = presets.with_overrides(cfg, {"train.loop.total_env_steps": self.total_env_steps})
+                console.print(f"training {run_dir} longer: {self.total_env_steps:,} env steps in all", soft_wrap=True)
             try:
                 run_mod.check_not_finished(run_dir, cfg)
             except run_mod.RunFinished as done:
                 console.print(f"{done} Nothing was changed.", soft_wrap=True)
                 return
-            if self._overrides():
-                raise ConfigError(
-                    "--resume continues the saved configuration; drop the other settings "
-                    f"({', '.join('--' + n.replace('_', '-') for n in self._overrides())})"
-                )
         else:
             cfg = self.config()
         loop = cfg.train.loop
@@ -496,6 +508,12 @@ class Reproduce:
     """run one job of the plan only: train and evaluate AGENT with SEED, or evaluate the expert"""
     report_only: bool = False
     """train nothing: build the report from the runs that have finished (evaluating them if needed)"""
+    total_env_steps: Annotated[int | None, tyro.conf.arg(metavar="N", help_behavior_hint="(default: the budget's)")] = (
+        None
+    )
+    """train every agent for N env steps instead of the budget's; runs of this --out that finished with
+    fewer are trained longer from their last checkpoint (exactly as a run of N from the start, except
+    for the evaluation at their earlier end)"""
 
     def run(self) -> None:
         from rich.console import Console
@@ -510,10 +528,13 @@ class Reproduce:
             raise ConfigError(f"--jobs must be >= 1, got {self.jobs}")
         if self.seeds < 1:
             raise ConfigError(f"--seeds must be >= 1, got {self.seeds}")
+        if self.total_env_steps is not None:
+            with flag_errors({"loop.total_env_steps": "--total-env-steps"}):
+                rep.budget_config(self.budget, "vpm", 0, self.total_env_steps)  # refused here, not in a job
         if sum(x is not None and x is not False for x in (self.plan, self.job, self.report_only or None)) > 1:
             raise ConfigError("--plan, --job and --report-only exclude each other")
         if self.plan is not None:
-            lines = rep.plan(self.budget, self.seeds, out, tuple(self.agents), self.episodes)
+            lines = rep.plan(self.budget, self.seeds, out, tuple(self.agents), self.episodes, self.total_env_steps)
             self.plan.parent.mkdir(parents=True, exist_ok=True)
             self.plan.write_text("\n".join(lines) + "\n")
             console.print(f"{len(lines)} commands written to {self.plan}:", *lines, sep="\n", markup=False)
@@ -530,7 +551,15 @@ class Reproduce:
                     f"'expert', got {self.job!r}"
                 )
             rep.agent_job(
-                self.budget, agent, int(seed), out, episodes, rep.PAPER_SHAPES, "difficult", log=console.print
+                self.budget,
+                agent,
+                int(seed),
+                out,
+                episodes,
+                rep.PAPER_SHAPES,
+                "difficult",
+                log=console.print,
+                total_env_steps=self.total_env_steps,
             )
             return
         path = rep.reproduce(
@@ -542,6 +571,7 @@ class Reproduce:
             log=console.print,
             jobs=self.jobs,
             report_only=self.report_only,
+            total_env_steps=self.total_env_steps,
         )
         console.print(f"report: {path}")
         console.print((path.parent / "report.md").read_text(), markup=False, soft_wrap=True)  # verbatim Markdown

@@ -55,6 +55,18 @@ def from_dict(cls, data: Any, where: str = ""):
     return cls(**kwargs)
 
 
+def trained_longer(saved: dict, new: dict) -> bool:
+    """True when config dict `new` is `saved` with a larger ``train.loop.total_env_steps`` and nothing
+    else changed: the same run trained for more env steps (`train.run.run` continues it)."""
+    try:
+        old_total, new_total = (d["train"]["loop"]["total_env_steps"] for d in (saved, new))
+    except (KeyError, TypeError):
+        return False
+    same = json.loads(json.dumps(saved))  # a deep copy of plain data
+    same["train"]["loop"]["total_env_steps"] = new_total
+    return new_total > old_total and not differences(same, new)
+
+
 def differences(a: dict, b: dict, prefix: str = "") -> list[str]:
     """Dotted paths where two config dicts differ (for 'checkpoint does not match this run')."""
     out = []

@@ -269,9 +269,11 @@ is the one evaluated above):
     )
     seeds = meta.get("seeds", 1)
     err = "standard error across seeds" if seeds > 1 else "standard error over test episodes"
-    text = f"""# mjx-push reproduction: {meta.get("budget", "?")} budget
+    total_flag = f" --total-env-steps {meta['total_env_steps']}" if meta.get("budget_total_changed") else ""
+    budget_name = meta.get("budget", "?") + (f" ({meta['total_env_steps']:,} env steps)" if total_flag else "")
+    text = f"""# mjx-push reproduction: {budget_name} budget
 
-Agents trained with `mjx-push reproduce --budget {meta.get("budget")} --seeds {seeds}`, each evaluated on
+Agents trained with `mjx-push reproduce --budget {meta.get("budget")} --seeds {seeds}{total_flag}`, each evaluated on
 {meta.get("episodes")} deterministic episodes per shape in the **{meta.get("setting")}** setting
 (the same seeds for every agent). Values are mean ± {err}.
 

@@ -30,7 +30,7 @@ from typing import Callable
 
 import numpy as np
 
-from train import atomic, presets
+from train import atomic, configio, presets
 from train.config import AGENT_KINDS
 from train import run as run_mod
 from train import policies
@@ -50,9 +50,13 @@ EVAL_EPISODES = {"smoke": 8, "cpu": 100, "cpu-long": 100, "reference": 100, "pap
 def train_or_reuse(cfg: presets.RunConfig, run_dir: Path, log: Callable[[str], None]) -> None:
     if (run_dir / "summary.json").is_file() and (run_dir / "best_policy.msgpack").is_file():
         saved = presets.load_config(run_dir / "config.json")
-        if saved != cfg:
+        if saved == cfg:
+            log(f"reusing finished run {run_dir}")
+            return
+        if not configio.trained_longer(presets.config_dict(saved), presets.config_dict(cfg)):
             raise ConfigError(f"{run_dir} holds a finished run of another configuration; use another --out")
-        log(f"reusing finished run {run_dir}")
+        log(f"training {run_dir} longer: {cfg.train.loop.total_env_steps:,} env steps in all")
+        run_mod.run(cfg, run_dir, resume=True)
         return
     resume = (run_dir / "checkpoints").is_dir() and any(p.name.isdigit() for p in (run_dir / "checkpoints").iterdir())
     if not resume and run_dir.exists():
@@ -166,12 +170,28 @@ def expert_job(
     return summaries
 
 
+def budget_config(budget: str, agent: str, seed: int, total_env_steps: int | None = None) -> presets.RunConfig:
+    """The run configuration of `agent` and `seed` under `budget`, trained for `total_env_steps` when
+    given (the comparison at a larger budget than the preset's, e.g. curves still rising at its end)."""
+    cfg = presets.make(agent, budget, seed)
+    if total_env_steps is None:
+        return cfg
+    return presets.with_overrides(cfg, {"train.loop.total_env_steps": total_env_steps})
+
+
 def run_dir_of(out: Path, agent: str, seed: int) -> Path:
     return Path(out) / "runs" / f"{agent}-s{seed}"
 
 
-def is_finished(run_dir: Path) -> bool:
-    return (Path(run_dir) / "summary.json").is_file() and (Path(run_dir) / "best_policy.msgpack").is_file()
+def is_finished(run_dir: Path, total_env_steps: int | None = None) -> bool:
+    """The run has finished (with `total_env_steps`, trained for exactly that many env steps: a run of a
+    smaller budget is not the one asked for)."""
+    run_dir = Path(run_dir)
+    if not ((run_dir / "summary.json").is_file() and (run_dir / "best_policy.msgpack").is_file()):
+        return False
+    return total_env_steps is None or (
+        presets.load_config(run_dir / "config.json").train.loop.total_env_steps == total_env_steps
+    )
 
 
 def agent_job(
@@ -185,17 +205,19 @@ def agent_job(
     log: Callable[[str], None] = print,
     config_hook: Callable[[presets.RunConfig], presets.RunConfig] | None = None,
     train: bool = True,
+    total_env_steps: int | None = None,
 ) -> dict[str, dict]:
     """Train (or reuse / resume) one agent and seed, then evaluate it per shape: {shape: summary}.
-    ``train`` False evaluates a finished run only. Module-level and picklable, so `--jobs` can run it in
-    a worker process."""
-    cfg = presets.make(agent, budget, seed)
+    ``train`` False evaluates a finished run only. ``total_env_steps`` replaces the budget's (a finished
+    run of fewer steps is trained longer from its checkpoint). Module-level and picklable, so `--jobs`
+    can run it in a worker process."""
+    cfg = budget_config(budget, agent, seed, total_env_steps)
     cfg = config_hook(cfg) if config_hook else cfg
     run_dir = run_dir_of(out, agent, seed)
     if train:
         train_or_reuse(cfg, run_dir, log)
-    elif not is_finished(run_dir):
-        raise ConfigError(f"{run_dir} has not finished training")
+    elif not is_finished(run_dir, cfg.train.loop.total_env_steps):
+        raise ConfigError(f"{run_dir} has not finished training ({cfg.train.loop.total_env_steps:,} env steps)")
     summaries = {}
     for shape in shapes:
         spec = EvalSpec(setting=setting, shape=shape, episodes=episodes, batch=min(episodes, 20))
@@ -240,12 +262,18 @@ def _log_line(prefix: str, line: str) -> None:
 
 
 def plan(
-    budget: str, seeds: int, out: Path, agents: tuple[str, ...] = SCHEDULE, episodes: int | None = None
+    budget: str,
+    seeds: int,
+    out: Path,
+    agents: tuple[str, ...] = SCHEDULE,
+    episodes: int | None = None,
+    total_env_steps: int | None = None,
 ) -> list[str]:
     """One shell command per job (each agent and seed: train, then evaluate; the expert's row), then the
     command that builds the report from them. The jobs are independent: run them anywhere that shares
     `out`, in any order, and the report last (or at any time, for the runs finished so far)."""
     ep = f" --episodes {episodes}" if episodes else ""
+    ep += f" --total-env-steps {total_env_steps}" if total_env_steps else ""
     base = f"mjx-push reproduce --budget {budget} --out {out}{ep}"
     jobs = [f"{base} --job {agent}:{seed}" for seed in range(seeds) for agent in dict.fromkeys(agents)]
     return jobs + [
@@ -267,6 +295,7 @@ def reproduce(
     jobs: int = 1,
     expert: bool = True,
     report_only: bool = False,
+    total_env_steps: int | None = None,
 ) -> Path:
     """Train + evaluate every agent for `seeds` seeds (`jobs` of them at a time, in worker processes
     when > 1), and the scripted expert as a baseline row (``expert``); returns the report's path.
@@ -285,7 +314,12 @@ def reproduce(
     items = [(agent, seed) for seed in range(seeds) for agent in agents]
     missing = []
     if report_only:
-        missing = [(a, s) for a, s in items if not is_finished(run_dir_of(out, a, s))]
+
+        def total(a: str, s: int) -> int:
+            cfg = budget_config(budget, a, s, total_env_steps)
+            return (config_hook(cfg) if config_hook else cfg).train.loop.total_env_steps
+
+        missing = [(a, s) for a, s in items if not is_finished(run_dir_of(out, a, s), total(a, s))]
         items = [i for i in items if i not in missing]
         for a, s in missing:
             log(f"{run_dir_of(out, a, s)} has not finished: left out of the report")
@@ -298,7 +332,12 @@ def reproduce(
         calls.append(
             (
                 ("agent", budget, agent, seed, out, episodes, shapes, setting),
-                {"log": job_log, "config_hook": config_hook, "train": not report_only},
+                {
+                    "log": job_log,
+                    "config_hook": config_hook,
+                    "train": not report_only,
+                    "total_env_steps": total_env_steps,
+                },
             )
         )
     if expert:  # last: the first worker to finish an agent takes it, beside the last agents
@@ -318,6 +357,8 @@ def reproduce(
         results["expert"] = {s: [v] for s, v in summaries[-1].items()}
     meta = {
         "budget": budget,
+        "total_env_steps": total_env_steps or presets.make("vpm", budget).train.loop.total_env_steps,
+        "budget_total_changed": total_env_steps is not None,
         "seeds": seeds,
         "jobs": jobs,
         "episodes": episodes,

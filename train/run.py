@@ -53,21 +53,39 @@ def _barrier(name: str) -> None:
         multihost_utils.sync_global_devices(name)
 
 
-def _check_same_config(run_dir: Path, cfg: RunConfig) -> None:
+def _check_same_config(run_dir: Path, cfg: RunConfig) -> int | None:
+    """Refuse a resume of `run_dir` with another configuration than its own, except the same run trained
+    longer (a larger ``train.loop.total_env_steps``): then its saved total env steps, else None."""
     saved = load_config(run_dir / "config.json")
+    if configio.trained_longer(config_dict(saved), config_dict(cfg)):
+        if cfg.train.sac.lr_decay:
+            raise ConfigError(
+                f"--resume: {run_dir} decays its learning rate over its "
+                f"{saved.train.loop.total_env_steps:,} env steps (train.sac.lr_decay): training it longer "
+                "would change the steps it has already taken; train a new run"
+            )
+        return saved.train.loop.total_env_steps
     diff = configio.differences(config_dict(saved), config_dict(cfg))
     if diff:
         raise ConfigError(f"--resume: {run_dir} was started with a different configuration: " + "; ".join(diff[:6]))
+    return None
 
 
-def prepare_dir(run_dir: Path, cfg: RunConfig, resume: bool, write: bool = True) -> None:
-    """Check `run_dir` for a new run or a resume of `cfg`, and (`write`) create it and its config."""
+def prepare_dir(run_dir: Path, cfg: RunConfig, resume: bool, write: bool = True) -> int | None:
+    """Check `run_dir` for a new run or a resume of `cfg`, and (`write`) create it and its config.
+    A resume whose `cfg` only asks for more env steps trains the run longer: its config.json takes the
+    new total and its summary.json goes (the run is unfinished again; its checkpoints, logs and saved
+    policies stay, and the end of the longer run rewrites them). Returns the run's earlier total then."""
     run_dir = Path(run_dir)
     has_ckpt = any(p.is_dir() and p.name.isdigit() for p in (run_dir / "checkpoints").glob("*"))
     if resume:
         if not has_ckpt:
             raise ConfigError(f"--resume: no checkpoint in {run_dir / 'checkpoints'}")
-        _check_same_config(run_dir, cfg)
+        earlier_total = _check_same_config(run_dir, cfg)
+        if earlier_total is not None and write:
+            atomic.write_text(run_dir / "config.json", json.dumps(config_dict(cfg), indent=2) + "\n")
+            (run_dir / "summary.json").unlink(missing_ok=True)
+        return earlier_total
     else:
         if has_ckpt or (run_dir / "metrics.csv").exists():
             raise ConfigError(
@@ -76,6 +94,7 @@ def prepare_dir(run_dir: Path, cfg: RunConfig, resume: bool, write: bool = True)
         if write:
             run_dir.mkdir(parents=True, exist_ok=True)
             atomic.write_text(run_dir / "config.json", json.dumps(config_dict(cfg), indent=2) + "\n")
+    return None
 
 
 class RunFinished(ValueError):
@@ -105,7 +124,7 @@ def check_not_finished(run_dir: Path, cfg: RunConfig) -> None:
         _check_same_config(run_dir, cfg)  # a different configuration is the more useful message
         raise RunFinished(
             f"{run_dir} has finished ({done.get('env_steps', '?')} env steps, summary.json): "
-            "--resume has nothing to continue; train longer in a new --run-dir."
+            "--resume has nothing to continue; --resume --total-env-steps N (more than it has) trains it longer."
         )
 
 
@@ -121,7 +140,10 @@ def run(
     substep_chunk: int | None = None,
     stop_on_signal: bool = False,
 ) -> tuple[dict, TrainState]:
-    """Train `cfg` in `run_dir`. Checkpoints after every `checkpoint_every` batches, at every
+    """Train `cfg` in `run_dir` (with `resume`, from its latest checkpoint; a `cfg` that differs from
+    the run's own only by a larger ``train.loop.total_env_steps`` trains it longer, finished or not,
+    exactly as a run of that length from the start would have trained, except for the evaluation it
+    had at its earlier end; see `prepare_dir`). Checkpoints after every `checkpoint_every` batches, at every
     evaluation and at the end. `stop_after`: stop (as if killed) after that many batches of this call.
     `adapter` replaces the MJX task (tests use the toy task). `substep_chunk`: substeps per tick of the
     MJX task's scheduler (0: lockstep; None: the default); it changes speed, not episodes, so it is not
@@ -190,7 +212,7 @@ def _run_locked(
     primary = data_parallel.is_primary()
     # Every process checks (what process 0 writes here, the config, none of the checks reads); the
     # others wait for the directory before they open its checkpoints.
-    prepare_dir(run_dir, cfg, resume, write=primary)
+    earlier_total = prepare_dir(run_dir, cfg, resume, write=primary)
     _barrier("prepared the run directory")
     encoder_params = enc.load(cfg.encoder and Path(cfg.encoder))
     loop = cfg.train.loop
@@ -269,6 +291,7 @@ def _run_locked(
         "first_batch_s": clock.first_batch_s,
         "steady_env_steps_per_s": (loop.env_steps_per_iteration / np.mean(steady)) if steady else None,
         "resumed_from_env_steps": resumed_from,
+        **({"trained_longer_from_env_steps": earlier_total} if earlier_total is not None else {}),
         "run_dir": str(run_dir),
     }
     atomic.write_text(run_dir / "summary.json", json.dumps(summary, indent=2) + "\n")
