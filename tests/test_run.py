@@ -110,6 +110,33 @@ def test_a_finished_run_trained_longer_equals_a_run_of_that_length(full_run, tmp
     assert "has finished" in capsys.readouterr().out
 
 
+def test_a_checkpoint_written_before_a_state_field_existed_resumes_exactly(full_run, tmp_path, toy):
+    """Checkpoints of runs trained before `TrainState.anchor_actor_params` existed (the comparison's
+    seed-2 runs) hold every other field: they resume, the new field at its initial value."""
+    import orbax.checkpoint as ocp
+
+    cfg, _, _, full_state = full_run
+    d = tmp_path / "old"
+    run_mod.run(cfg, d, adapter=toy, checkpoint_every=1, stop_after=3)
+    ckpts = checkpoints.Checkpoints(d / "checkpoints")
+    state = latest_state(d, cfg, toy)
+    meta = ckpts.manager.restore(120, args=ocp.args.Composite(meta=ocp.args.JsonRestore()))["meta"]
+    old = {f.name: getattr(state, f.name) for f in dataclasses.fields(state) if f.name not in checkpoints.ADDED_FIELDS}
+    import shutil
+
+    shutil.rmtree(d / "checkpoints" / "120")
+    ckpts = checkpoints.Checkpoints(d / "checkpoints")
+    ckpts.manager.save(
+        120, args=ocp.args.Composite(state=ocp.args.StandardSave(old), meta=ocp.args.JsonSave(meta)), force=True
+    )
+    ckpts.manager.wait_until_finished()
+    _, resumed = run_mod.run(cfg, d, adapter=toy, resume=True)
+    for (path, a), b in zip(
+        jax.tree_util.tree_leaves_with_path(jax.device_get(resumed)), jax.tree_util.tree_leaves(full_state)
+    ):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b), err_msg=jax.tree_util.keystr(path))
+
+
 def test_run_writes_logs_checkpoints_and_policies(full_run):
     cfg, d, summary, state = full_run
     with (d / "metrics.csv").open() as f:

@@ -4,6 +4,7 @@ run needs to resume exactly (train/run.py)."""
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 from pathlib import Path
 
@@ -17,6 +18,10 @@ from mjx_push.errors import ConfigError
 
 CHECKPOINT_FORMAT = "mjx-push-checkpoint"
 CHECKPOINT_VERSION = 1
+# TrainState fields added since checkpoints of this version were first written. A checkpoint without
+# them restores the rest and takes their initial value from the template: what the run held, since
+# they only change where a later feature is switched on, and no saved configuration could switch it on.
+ADDED_FIELDS = ("anchor_actor_params",)
 
 
 class Checkpoints:
@@ -83,8 +88,21 @@ class Checkpoints:
                 "state"
             ]
         except Exception as e:
+            state = self._restore_without_added_fields(step, template, abstract)
+            if state is not None:
+                return state, meta
             raise ConfigError(
                 f"checkpoint {self.directory}/{step} is corrupt or does not match this run's "
                 f"state (shapes, dtypes or structure): {type(e).__name__}: {str(e)[:300]}"
             ) from None
         return state, meta
+
+    def _restore_without_added_fields(self, step: int, template: TrainState, abstract: TrainState) -> TrainState | None:
+        """The checkpoint at `step` read as written before `ADDED_FIELDS` existed, those fields from
+        `template`; None when it is not such a checkpoint either."""
+        older = {f.name: getattr(abstract, f.name) for f in dataclasses.fields(template) if f.name not in ADDED_FIELDS}
+        try:
+            got = self.manager.restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore(older)))["state"]
+        except Exception:
+            return None
+        return template.replace(**got)
