@@ -101,6 +101,15 @@ def test_a_finished_run_trained_longer_equals_a_run_of_that_length(full_run, tmp
     with pytest.raises(ValueError, match="lr_decay"):
         run_mod.run(_with_total(cfg, 240, lr_decay=True), decayed, adapter=toy, resume=True)
     assert (decayed / "summary.json").is_file()  # refused before anything changed
+    garbled = tmp_path / "garbled"
+    shutil.copytree(d, garbled)
+    for p in (garbled / "checkpoints" / "200" / "state").rglob("*"):
+        if p.is_file() and p.stat().st_size > 100:
+            p.write_bytes(b"\x00garbage" * 4)
+    with pytest.raises(ValueError, match="corrupt"):
+        run_mod.run(_with_total(cfg, 240), garbled, adapter=toy, resume=True)
+    assert json.loads((garbled / "config.json").read_text())["train"]["loop"]["total_env_steps"] == 200
+    assert (garbled / "summary.json").is_file()  # an unreadable checkpoint leaves the run as it was
     # The command line: only --total-env-steps goes with --resume, and only upwards.
     assert cli_main(["train", "--resume", "--run-dir", str(d), "--total-env-steps", "120"]) == 2
     assert "longer, not shorter" in capsys.readouterr().err

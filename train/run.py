@@ -73,19 +73,14 @@ def _check_same_config(run_dir: Path, cfg: RunConfig) -> int | None:
 
 def prepare_dir(run_dir: Path, cfg: RunConfig, resume: bool, write: bool = True) -> int | None:
     """Check `run_dir` for a new run or a resume of `cfg`, and (`write`) create it and its config.
-    A resume whose `cfg` only asks for more env steps trains the run longer: its config.json takes the
-    new total and its summary.json goes (the run is unfinished again; its checkpoints, logs and saved
-    policies stay, and the end of the longer run rewrites them). Returns the run's earlier total then."""
+    A resume whose `cfg` only asks for more env steps trains the run longer (`_start_longer`, once its
+    checkpoint has been read): returns the run's earlier total then, else None."""
     run_dir = Path(run_dir)
     has_ckpt = any(p.is_dir() and p.name.isdigit() for p in (run_dir / "checkpoints").glob("*"))
     if resume:
         if not has_ckpt:
             raise ConfigError(f"--resume: no checkpoint in {run_dir / 'checkpoints'}")
-        earlier_total = _check_same_config(run_dir, cfg)
-        if earlier_total is not None and write:
-            atomic.write_text(run_dir / "config.json", json.dumps(config_dict(cfg), indent=2) + "\n")
-            (run_dir / "summary.json").unlink(missing_ok=True)
-        return earlier_total
+        return _check_same_config(run_dir, cfg)
     else:
         if has_ckpt or (run_dir / "metrics.csv").exists():
             raise ConfigError(
@@ -95,6 +90,14 @@ def prepare_dir(run_dir: Path, cfg: RunConfig, resume: bool, write: bool = True)
             run_dir.mkdir(parents=True, exist_ok=True)
             atomic.write_text(run_dir / "config.json", json.dumps(config_dict(cfg), indent=2) + "\n")
     return None
+
+
+def _start_longer(run_dir: Path, cfg: RunConfig) -> None:
+    """The run in `run_dir` now trains for `cfg`'s longer total: config.json takes it and summary.json
+    goes (the run is unfinished again; checkpoints, logs and saved policies stay, and the end of the
+    longer run rewrites them). Called after the checkpoint restored, so a refused resume changes nothing."""
+    atomic.write_text(run_dir / "config.json", json.dumps(config_dict(cfg), indent=2) + "\n")
+    (run_dir / "summary.json").unlink(missing_ok=True)
 
 
 class RunFinished(ValueError):
@@ -231,6 +234,8 @@ def _run_locked(
     if resume:
         state, meta = ckpts.restore(state, cfg)
         resumed_from = int(state.env_steps)
+        if earlier_total is not None and primary:
+            _start_longer(run_dir, cfg)
     log = MetricLog(run_dir, resumed_from, write=primary)
 
     clock = _Clock()
