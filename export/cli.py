@@ -264,7 +264,10 @@ class Reproduce(train_cli.Reproduce):
         out = self.out or Path(f"outputs/reproduce-{self.budget}")
         episodes = self.episodes or rep.EVAL_EPISODES[self.budget]
         console = Console()
-        path = parity_report(out, runs, rep.PAPER_SHAPES, "difficult", episodes, tuple(self.cpu), log=console.print)
+        total = rep.budget_config(self.budget, "vpm", 0, self.total_env_steps).train.loop.total_env_steps
+        path = parity_report(
+            out, runs, rep.PAPER_SHAPES, "difficult", episodes, tuple(self.cpu), console.print, total_env_steps=total
+        )
         console.print(path.read_text(), markup=False, soft_wrap=True)
 
 

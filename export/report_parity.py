@@ -77,15 +77,18 @@ def parity_report(
     episodes: int,
     sources: tuple[str, ...],
     log: Callable = print,
+    total_env_steps: int | None = None,
 ) -> Path:
     """Evaluate every finished (agent, seed) of `runs` in CPU MuJoCo per shape and mask source and write
     `out`/report-parity.md: per agent and shape, success in MJX and in CPU MuJoCo (mean over the seeds,
-    each seed's value in brackets), the per-episode agreement and the correlation of final distances."""
+    each seed's value in brackets), the per-episode agreement and the correlation of final distances.
+    `total_env_steps`: only runs trained for that many env steps count as finished (`reproduce
+    --total-env-steps`: a run not yet trained longer is left out, as in the MJX report)."""
     out = Path(out)
     rows, left_out = [], []
     for agent, seed in runs:
         run_dir = rep.run_dir_of(out, agent, seed)
-        if not rep.is_finished(run_dir):
+        if not rep.is_finished(run_dir, total_env_steps):
             left_out.append(run_dir.name)
             continue
         for shape in shapes:

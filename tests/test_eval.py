@@ -510,6 +510,16 @@ def test_reproduce_cpu_evaluates_each_run_on_its_mjx_episodes_and_caches_it(tiny
         cpu_evaluation(run_dir, "difficult", "square", 2, "analytic")
     with pytest.raises(ValueError, match="no finished run"):
         parity_report(out, [("vpm", 0)], ("cylinder",), "difficult", 2, ("analytic",))
+    with pytest.raises(ValueError, match="no finished run"):  # a total the run has not been trained to
+        parity_report(
+            out,
+            [("egru", 0)],
+            ("cylinder",),
+            "difficult",
+            2,
+            ("analytic",),
+            total_env_steps=cfg.train.loop.total_env_steps + 1,
+        )
 
 
 def test_reproduce_cpu_refuses_what_it_cannot_evaluate(tmp_path, capsys):
