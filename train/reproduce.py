@@ -56,7 +56,7 @@ def train_or_reuse(cfg: presets.RunConfig, run_dir: Path, log: Callable[[str], N
         if not configio.trained_longer(presets.config_dict(saved), presets.config_dict(cfg)):
             raise ConfigError(f"{run_dir} holds a finished run of another configuration; use another --out")
         log(f"training {run_dir} longer: {cfg.train.loop.total_env_steps:,} env steps in all")
-        run_mod.run(cfg, run_dir, resume=True)
+        run_mod.run(cfg, run_dir, resume=True)  # never the restart below: a finished run is not discarded
         return
     resume = (run_dir / "checkpoints").is_dir() and any(p.name.isdigit() for p in (run_dir / "checkpoints").iterdir())
     if not resume and run_dir.exists():
@@ -170,13 +170,20 @@ def expert_job(
     return summaries
 
 
-def budget_config(budget: str, agent: str, seed: int, total_env_steps: int | None = None) -> presets.RunConfig:
+def budget_config(
+    budget: str,
+    agent: str,
+    seed: int,
+    total_env_steps: int | None = None,
+    config_hook: Callable[[presets.RunConfig], presets.RunConfig] | None = None,
+) -> presets.RunConfig:
     """The run configuration of `agent` and `seed` under `budget`, trained for `total_env_steps` when
-    given (the comparison at a larger budget than the preset's, e.g. curves still rising at its end)."""
+    given (the comparison at a larger budget than the preset's, e.g. curves still rising at its end),
+    then passed through `config_hook` (tests shrink runs with it)."""
     cfg = presets.make(agent, budget, seed)
-    if total_env_steps is None:
-        return cfg
-    return presets.with_overrides(cfg, {"train.loop.total_env_steps": total_env_steps})
+    if total_env_steps is not None:
+        cfg = presets.with_overrides(cfg, {"train.loop.total_env_steps": total_env_steps})
+    return config_hook(cfg) if config_hook else cfg
 
 
 def run_dir_of(out: Path, agent: str, seed: int) -> Path:
@@ -211,8 +218,7 @@ def agent_job(
     ``train`` False evaluates a finished run only. ``total_env_steps`` replaces the budget's (a finished
     run of fewer steps is trained longer from its checkpoint). Module-level and picklable, so `--jobs`
     can run it in a worker process."""
-    cfg = budget_config(budget, agent, seed, total_env_steps)
-    cfg = config_hook(cfg) if config_hook else cfg
+    cfg = budget_config(budget, agent, seed, total_env_steps, config_hook)
     run_dir = run_dir_of(out, agent, seed)
     if train:
         train_or_reuse(cfg, run_dir, log)
@@ -314,12 +320,14 @@ def reproduce(
     items = [(agent, seed) for seed in range(seeds) for agent in agents]
     missing = []
     if report_only:
-
-        def total(a: str, s: int) -> int:
-            cfg = budget_config(budget, a, s, total_env_steps)
-            return (config_hook(cfg) if config_hook else cfg).train.loop.total_env_steps
-
-        missing = [(a, s) for a, s in items if not is_finished(run_dir_of(out, a, s), total(a, s))]
+        missing = [
+            (a, s)
+            for a, s in items
+            if not is_finished(
+                run_dir_of(out, a, s),
+                budget_config(budget, a, s, total_env_steps, config_hook).train.loop.total_env_steps,
+            )
+        ]
         items = [i for i in items if i not in missing]
         for a, s in missing:
             log(f"{run_dir_of(out, a, s)} has not finished: left out of the report")
@@ -357,7 +365,7 @@ def reproduce(
         results["expert"] = {s: [v] for s, v in summaries[-1].items()}
     meta = {
         "budget": budget,
-        "total_env_steps": total_env_steps or presets.make("vpm", budget).train.loop.total_env_steps,
+        "total_env_steps": budget_config(budget, "vpm", 0, total_env_steps).train.loop.total_env_steps,
         "budget_total_changed": total_env_steps is not None,
         "seeds": seeds,
         "jobs": jobs,
