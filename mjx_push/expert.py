@@ -10,7 +10,8 @@ true position) and plans one environment step at a time, in three modes:
 * **push**: move the rod along the object->goal direction by the remaining distance, at most
   ``max_push`` per step (slow enough that light objects decelerate with the rod instead of sliding
   on), with a sideways correction that keeps the rod on the line through the object's centre.
-* **hold**: once the object is within ``hold_radius`` of the goal, stand still (short steps).
+* **hold**: once the object is within ``hold_radius`` of the goal, stand still (short steps, or with
+  ``hold_short`` off steps as long as the other modes', so a_s does not jump at the hold radius).
 
 Every mode asks for a flange *displacement* D and a step length n (substeps). The controller
 drives the flange towards ``ee + offset`` with a first-order response, so the expert inverts the
@@ -44,6 +45,9 @@ class ExpertConfig:
     max_push: float = 0.02  # m per step while pushing
     push_lead: float = 0.0  # m pushed beyond the remaining distance (heavy objects lag the rod)
     hold_radius: float = 0.003  # m: closer than this, stand still
+    # Stand still with the shortest step (True) or with the other modes' step length (False): the same
+    # stillness, but a cloner's a_s label no longer jumps from about 0.8 to -1 at the hold radius.
+    hold_short: bool = True
     settle: float = 0.9  # fraction of the offset a step should reach
     # Step response of the controller per substep and unit gain, and its dead time in substeps
     # (fitted on the MJX scene: gains 5-20, offsets of a few centimetres).
@@ -56,6 +60,8 @@ class ExpertConfig:
                 raise ConfigError(f"expert.{name} must be > 0, got {getattr(self, name)}")
         if not 0 < self.settle < 1:
             raise ConfigError(f"expert.settle must be in (0, 1), got {self.settle}")
+        if not isinstance(self.hold_short, bool):
+            raise ConfigError(f"expert.hold_short must be a bool, got {self.hold_short!r}")
         if self.push_lead < 0 or self.dead_substeps < 0:
             raise ConfigError("expert.push_lead and expert.dead_substeps must be >= 0")
 
@@ -117,7 +123,7 @@ def act(cfg: ExpertConfig, env: EnvConfig, gt: dict) -> jax.Array:
 
     hold = dist < cfg.hold_radius
     disp = jnp.where(hold, jnp.zeros(2), jnp.where(on_line, push, move))
-    return displacement_action(cfg, env, disp, short=hold)
+    return displacement_action(cfg, env, disp, short=hold & cfg.hold_short)
 
 
 def displacement_action(cfg: ExpertConfig, env: EnvConfig, disp: jax.Array, short: jax.Array) -> jax.Array:

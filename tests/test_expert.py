@@ -43,6 +43,27 @@ def test_displacement_action_inverts_the_step_response():
         expert.ExpertConfig(settle=1.0)
 
 
+def test_hold_stands_still_with_short_steps_or_with_the_usual_length():
+    env = EnvConfig(**presets.ACTION_BOX)
+    gt = {
+        "ee_xy": jnp.array([0.45, -0.05]),
+        "object_xy": jnp.array([0.5, 0.0]),
+        "object_yaw": jnp.asarray(0.3),
+        "goal_xy": jnp.array([0.501, 0.001]),  # 1.4 mm from the object: inside the hold radius
+        "size": jnp.array([0.03, 0.03, 0.03]),
+        "is_box": jnp.asarray(False),
+    }
+    away = {**gt, "goal_xy": jnp.array([0.6, 0.1])}
+    short = np.asarray(expert.act(expert.ExpertConfig(), env, gt))
+    usual = np.asarray(expert.act(expert.ExpertConfig(hold_short=False), env, gt))
+    moving = np.asarray(expert.act(expert.ExpertConfig(hold_short=False), env, away))
+    assert np.all(short[:2] == 0) and np.all(usual[:2] == 0)  # both stand still
+    assert int(decode_substeps(short[2], env.substeps)) == env.substeps[0]
+    assert usual[2] == pytest.approx(moving[2]) and usual[2] > 0.5  # no jump in a_s at the hold radius
+    with pytest.raises(ValueError, match="expert.hold_short"):
+        expert.ExpertConfig(hold_short=1)
+
+
 @pytest.fixture(scope="module")
 def expert_policy():
     return ExpertPolicy(presets.make("vpm", "cpu"))
