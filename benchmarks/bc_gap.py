@@ -5,10 +5,10 @@ actor that cannot see a cuboid's orientation can avoid.
         [--episodes 96] [--seed 1000003] [--yaws 16] [--out outputs/bc_gap.json]
 
 POLICY is a run directory, a saved policy (best_policy.msgpack), an exported .npz or a shipped policy
-(``pretrained:NAME``). Each is played deterministically on
-the protocol's episodes of ``--setting`` (objects of ``--shape``, any by default) in MJX, through the training rollout with the expert's labels
-stored (the states the agent itself reaches, DAgger's view), and at every step of every valid episode
-its action is compared with the expert's noise-free action there. Steps are grouped by shape
+(``pretrained:NAME``). Each is played deterministically on the protocol's episodes of ``--setting``
+(objects of ``--shape``, any by default) in MJX, through the training rollout with the expert's
+labels stored (the states the agent itself reaches, DAgger's view), and at every step of every valid
+episode its action is compared with the expert's noise-free action there. Steps are grouped by shape
 (cylinder, square cuboid, rectangular cuboid) and by how far the object still is from its goal
 (``travel`` >= 3 cm, ``finish`` 1-3 cm, ``hold`` < 1 cm: the finish is where 1 cm is won or lost).
 
@@ -195,6 +195,7 @@ def main(argv=None) -> None:
     ap.add_argument("policies", nargs="*")
     ap.add_argument("--experts", action="store_true", help="also the scripted expert and its yaw-blind mean")
     ap.add_argument("--setting", default="difficult", choices=("standard", "difficult"))
+    ap.add_argument("--shape", default="any", choices=("any", "cylinder", "cuboid", "square", "rectangular"))
     ap.add_argument(
         "--episodes", type=int, default=96, help="protocol episodes (a multiple of the batch plays whole chunks)"
     )
