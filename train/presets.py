@@ -4,7 +4,8 @@ the encoder, with the presets of `mjx-push train --preset`.
 * ``smoke``: the whole pipeline (demonstrations, rollouts, updates, evaluation, checkpoints, best
   policy) on 2 CPU cores in a few minutes; it proves the plumbing, not the policy.
 * ``cpu``: the README's main job: an agent that learns to push to 1 cm on 2 CPU cores in under 10
-  minutes (VPM, 48,000 env steps: 70 % within 1 cm on 100 standard episodes at seed 1; docs/results.md).
+  minutes (VPM, 35,200 env steps, the steady-hold expert; within 1 cm on 100 standard episodes:
+  docs/results.md).
 * ``cpu-long``: 64,000 env steps, 25-30 minutes alone on 2 CPU cores, for 1 cm (eGRU: 64-80 % within
   1 cm by seed).
 * ``reference``: the paper's reference code, one call of its training script: its action box and
@@ -96,14 +97,15 @@ _STEADY_EXPERT = ExpertConfig(hold_short=False)
 
 # "cpu", the README's main job. Evaluations cost about four batches each (100 episodes in chunks of
 # 32), so it evaluates once, at the end; metrics.csv and the progress lines follow training success per batch.
-# 48,000 env steps fit the 10 minutes alone on 2 cores (docs/performance.md); 28,800 gave 42-44 %.
+# 35,200 env steps fit 10 minutes alone on 2 cores with an empty compilation cache (about 20 s a
+# batch after the first, whose compilation takes ~85 s; docs/performance.md); 48,000 take ~12 min.
 _CPU = dict(
     loop=dict(
         num_envs=32,
-        total_env_steps=48_000,
+        total_env_steps=35_200,
         warmup_env_steps=4_800,
         utd=0.25,
-        eval_every_env_steps=48_000,
+        eval_every_env_steps=35_200,
         eval_episodes=100,
     ),
     sac=dict(batch_size=256, **_SAC_FEATURES),
