@@ -44,6 +44,7 @@ _BUDGET = {
     "train.loop.total_env_steps": 64_000,
     "train.loop.eval_every_env_steps": 8_000,
     "train.loop.eval_episodes": 64,
+    "expert.hold_short": True,  # the teacher the rungs were measured with (the cpu preset now holds steady)
 }
 _5CM = {"env.success_tau": 0.05}  # the learner's relabelling radius follows it
 RUNGS: dict[str, tuple[str, str, dict]] = {
