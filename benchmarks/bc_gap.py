@@ -96,30 +96,23 @@ def yaw_shifts(size, yaws: int):
     return period * jnp.arange(yaws) / yaws
 
 
+def yaw_actions(cfg, gt: dict, yaws: int) -> jax.Array:
+    """[K, 3] the expert's actions in one environment at ``yaws`` yaws over its footprint's symmetry
+    period, the first the true yaw."""
+    shifts = yaw_shifts(gt["size"], yaws)
+    return jax.vmap(lambda d: expert_mod.act(cfg.expert, cfg.env, {**gt, "object_yaw": gt["object_yaw"] + d}))(shifts)
+
+
 def blind_expert(cfg, yaws: int):
     """The expert's action averaged over ``yaws`` yaws of the object: what it does not knowing them."""
-
-    def act(gt):
-        shifts = yaw_shifts(gt["size"], yaws)
-        actions = jax.vmap(lambda d: expert_mod.act(cfg.expert, cfg.env, {**gt, "object_yaw": gt["object_yaw"] + d}))(
-            shifts
-        )
-        return jnp.mean(actions, axis=0)
-
-    return act
+    return lambda gt: jnp.mean(yaw_actions(cfg, gt, yaws), axis=0)
 
 
 def yaw_floor(cfg, priv: np.ndarray, goal_xy: np.ndarray, yaws: int) -> tuple[np.ndarray, np.ndarray]:
     """Per state: the expert's actions at ``yaws`` yaws over the footprint's symmetry period (the first
     the true yaw) -> (their variance summed over the action's dimensions, the true-yaw action)."""
     gt = expert_ground_truth(jnp.asarray(priv), jnp.asarray(goal_xy))
-    shifts = jax.vmap(lambda size: yaw_shifts(size, yaws))(gt["size"])  # [S, K]
-    act = jax.vmap(lambda g: expert_mod.act(cfg.expert, cfg.env, g))
-
-    def at(shift):  # [S] -> [S, 3]
-        return act({**gt, "object_yaw": gt["object_yaw"] + shift})
-
-    actions = np.asarray(jax.jit(jax.vmap(at, in_axes=1, out_axes=1))(shifts))  # [S, K, 3]
+    actions = np.asarray(jax.jit(jax.vmap(lambda g: yaw_actions(cfg, g, yaws)))(gt))  # [S, K, 3]
     var = np.sum(np.mean((actions - actions.mean(axis=1, keepdims=True)) ** 2, axis=1), axis=-1)
     return var, actions[:, 0]
 
