@@ -264,7 +264,9 @@ class Reproduce(train_cli.Reproduce):
         out = self.out or Path(f"outputs/reproduce-{self.budget}")
         episodes = self.episodes or rep.EVAL_EPISODES[self.budget]
         console = Console()
-        total = rep.budget_config(self.budget, "vpm", 0, self.total_env_steps).train.loop.total_env_steps
+        total = rep.budget_config(
+            self.budget, "vpm", 0, self.total_env_steps, overrides=self.overrides()
+        ).train.loop.total_env_steps
         path = parity_report(
             out, runs, rep.PAPER_SHAPES, "difficult", episodes, tuple(self.cpu), console.print, total_env_steps=total
         )

@@ -383,6 +383,9 @@ def test_set_overrides_any_field_by_its_config_path(capsys):
         ("trian.sac.lr=1", "no section 'trian'"),
         ("train.sac.bc_weight=-1", "bc_weight must be"),
         ("train.sac.bc_weight", "PATH=VALUE"),
+        ("train.sac.lr=abc", "train.sac.lr must be a number, got 'abc'"),  # a value of the wrong kind
+        ("train.loop.num_envs=3.5", "num_envs must be an integer"),
+        ("expert.hold_short=1", "hold_short must be true or false"),
     ):
         assert cli_main(["train", "--set", bad, "--run-dir", "/nonexistent/never"]) == 2
         assert says in capsys.readouterr().err, bad

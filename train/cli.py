@@ -514,6 +514,23 @@ class Reproduce:
     """train every agent for N env steps instead of the budget's; runs of this --out that finished with
     fewer are trained longer from their last checkpoint (exactly as a run of N from the start, except
     for the evaluation at their earlier end)"""
+    set: Annotated[tuple[str, ...], tyro.conf.arg(metavar="PATH=VALUE", help_behavior_hint="(default: none)")] = ()
+    """override a field of every agent's run configuration and the expert's (config.json's paths;
+    values in JSON), e.g. --set expert.hold_short=false: the comparison under a variant (use its own
+    --out: a finished run of another configuration is refused)"""
+
+    def overrides(self) -> dict:
+        """`--set` as {path: value}, checked against the budget's configuration of every agent asked for."""
+        from train import presets
+        from train import reproduce as rep
+
+        try:
+            overrides = presets.parse_overrides(self.set)
+            for agent in self.agents:
+                rep.budget_config(self.budget, agent, 0, overrides=overrides)
+        except ValueError as e:  # unknown paths name themselves; a bad value names its field
+            raise ConfigError(str(e) if str(e).startswith("--set") else f"--set: {e}") from None
+        return overrides
 
     def run(self) -> None:
         from rich.console import Console
@@ -531,10 +548,13 @@ class Reproduce:
         if self.total_env_steps is not None:
             with flag_errors({"loop.total_env_steps": "--total-env-steps"}):
                 rep.budget_config(self.budget, "vpm", 0, self.total_env_steps)  # refused here, not in a job
+        overrides = self.overrides()
         if sum(x is not None and x is not False for x in (self.plan, self.job, self.report_only or None)) > 1:
             raise ConfigError("--plan, --job and --report-only exclude each other")
         if self.plan is not None:
-            lines = rep.plan(self.budget, self.seeds, out, tuple(self.agents), self.episodes, self.total_env_steps)
+            lines = rep.plan(
+                self.budget, self.seeds, out, tuple(self.agents), self.episodes, self.total_env_steps, overrides
+            )
             self.plan.parent.mkdir(parents=True, exist_ok=True)
             self.plan.write_text("\n".join(lines) + "\n")
             console.print(f"{len(lines)} commands written to {self.plan}:", *lines, sep="\n", markup=False)
@@ -542,7 +562,9 @@ class Reproduce:
         episodes = self.episodes or rep.EVAL_EPISODES[self.budget]
         if self.job is not None:
             if self.job == "expert":
-                rep.expert_job(self.budget, out, episodes, rep.PAPER_SHAPES, "difficult", log=console.print)
+                rep.expert_job(
+                    self.budget, out, episodes, rep.PAPER_SHAPES, "difficult", log=console.print, overrides=overrides
+                )
                 return
             agent, sep, seed = self.job.partition(":")
             if not sep or agent not in rep.AGENTS or not seed.isdigit():
@@ -560,6 +582,7 @@ class Reproduce:
                 "difficult",
                 log=console.print,
                 total_env_steps=self.total_env_steps,
+                overrides=overrides,
             )
             return
         path = rep.reproduce(
@@ -572,6 +595,7 @@ class Reproduce:
             jobs=self.jobs,
             report_only=self.report_only,
             total_env_steps=self.total_env_steps,
+            overrides=overrides,
         )
         console.print(f"report: {path}")
         console.print((path.parent / "report.md").read_text(), markup=False, soft_wrap=True)  # verbatim Markdown

@@ -32,7 +32,21 @@ def _convert(tp, value, where: str):
             return None
         inner = [a for a in typing.get_args(tp) if a is not type(None)]
         return _convert(inner[0], value, where) if len(inner) == 1 else value
+    if origin is typing.Literal and value not in typing.get_args(tp):
+        raise ConfigError(f"{where} must be one of {list(typing.get_args(tp))}, got {value!r}")
+    # A value of the wrong kind (e.g. `--set train.sac.lr=abc`) is named here, not met as a TypeError
+    # deep in a config's checks. bool is an int in Python, but never a number of a config.
+    if tp in _KINDS and (not isinstance(value, _KINDS[tp][0]) or (tp is not bool and isinstance(value, bool))):
+        raise ConfigError(f"{where} must be {_KINDS[tp][1]}, got {value!r}")
     return value
+
+
+_KINDS = {
+    float: ((int, float), "a number"),
+    int: (int, "an integer"),
+    bool: (bool, "true or false"),
+    str: (str, "a string"),
+}
 
 
 def from_dict(cls, data: Any, where: str = ""):

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import shlex
 from pathlib import Path
 from typing import Literal, get_args
 
@@ -216,6 +217,15 @@ def parse_overrides(items) -> dict:
 # Facts of the task the environment defines and the (task-agnostic) learner reads a copy of: the copy
 # is always the environment's value, so a user sets each once, on the environment.
 TASK_FACTS = {"train.loop.episode_len": "env.episode_length", "train.replay.success_tau": "env.success_tau"}
+
+
+def set_flag(overrides: dict | None) -> str:
+    """` --set PATH=VALUE ...` giving `overrides` back (values in JSON, quoted for a shell), or ''."""
+    if not overrides:
+        return ""
+    return " --set " + " ".join(
+        shlex.quote(f"{k}={json.dumps(v, separators=(',', ':'))}") for k, v in overrides.items()
+    )
 
 
 def with_overrides(cfg: RunConfig, overrides: dict) -> RunConfig:

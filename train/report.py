@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from train import presets
 from train.evaluate import DISTANCE_METRICS, METRICS, sem
 from train.loop import improves
 from mjx_push.errors import ConfigError
@@ -270,6 +271,7 @@ is the one evaluated above):
     seeds = meta.get("seeds", 1)
     err = "standard error across seeds" if seeds > 1 else "standard error over test episodes"
     total_flag = f" --total-env-steps {meta['total_env_steps']}" if meta.get("budget_total_changed") else ""
+    total_flag += presets.set_flag(meta.get("overrides"))
     budget_name = meta.get("budget", "?") + (f" ({meta['total_env_steps']:,} env steps)" if total_flag else "")
     text = f"""# mjx-push reproduction: {budget_name} budget
 

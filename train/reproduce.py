@@ -135,12 +135,19 @@ def read_cache(path: Path) -> dict:
 
 
 def expert_job(
-    budget: str, out: Path, episodes: int, shapes: tuple[str, ...], setting: str, log: Callable[[str], None] = print
+    budget: str,
+    out: Path,
+    episodes: int,
+    shapes: tuple[str, ...],
+    setting: str,
+    log: Callable[[str], None] = print,
+    overrides: dict | None = None,
 ) -> dict[str, dict]:
-    """The scripted expert under the budget's action box, per shape: the baseline row of the report
-    (it reads the simulator's ground truth, so it bounds what the task allows, not what a policy
-    sees). Cached in OUT/expert/ like the agents' evaluations, keyed by the spec and the settings."""
-    cfg = presets.make("vpm", budget)
+    """The scripted expert under the budget's action box (and `overrides`, the agents' `--set`), per
+    shape: the baseline row of the report (it reads the simulator's ground truth, so it bounds what
+    the task allows, not what a policy sees). Cached in OUT/expert/ like the agents' evaluations,
+    keyed by the spec and the settings."""
+    cfg = budget_config(budget, "vpm", 0, overrides=overrides)
     key = {"env": presets.config_dict(cfg)["env"], "expert": presets.config_dict(cfg)["expert"]}
     summaries = {}
     for shape in shapes:
@@ -176,13 +183,17 @@ def budget_config(
     seed: int,
     total_env_steps: int | None = None,
     config_hook: Callable[[presets.RunConfig], presets.RunConfig] | None = None,
+    overrides: dict | None = None,
 ) -> presets.RunConfig:
     """The run configuration of `agent` and `seed` under `budget`, trained for `total_env_steps` when
     given (the comparison at a larger budget than the preset's, e.g. curves still rising at its end),
-    then passed through `config_hook` (tests shrink runs with it)."""
+    with `overrides` ({config path: value}, `--set`: the comparison under a variant, e.g. another
+    expert) applied to every agent alike, then passed through `config_hook` (tests shrink runs with it)."""
     cfg = presets.make(agent, budget, seed)
     if total_env_steps is not None:
         cfg = presets.with_overrides(cfg, {"train.loop.total_env_steps": total_env_steps})
+    if overrides:
+        cfg = presets.with_overrides(cfg, overrides)
     return config_hook(cfg) if config_hook else cfg
 
 
@@ -213,12 +224,13 @@ def agent_job(
     config_hook: Callable[[presets.RunConfig], presets.RunConfig] | None = None,
     train: bool = True,
     total_env_steps: int | None = None,
+    overrides: dict | None = None,
 ) -> dict[str, dict]:
     """Train (or reuse / resume) one agent and seed, then evaluate it per shape: {shape: summary}.
     ``train`` False evaluates a finished run only. ``total_env_steps`` replaces the budget's (a finished
-    run of fewer steps is trained longer from its checkpoint). Module-level and picklable, so `--jobs`
-    can run it in a worker process."""
-    cfg = budget_config(budget, agent, seed, total_env_steps, config_hook)
+    run of fewer steps is trained longer from its checkpoint); ``overrides`` as in `budget_config`.
+    Module-level and picklable, so `--jobs` can run it in a worker process."""
+    cfg = budget_config(budget, agent, seed, total_env_steps, config_hook, overrides)
     run_dir = run_dir_of(out, agent, seed)
     if train:
         train_or_reuse(cfg, run_dir, log)
@@ -274,12 +286,14 @@ def plan(
     agents: tuple[str, ...] = SCHEDULE,
     episodes: int | None = None,
     total_env_steps: int | None = None,
+    overrides: dict | None = None,
 ) -> list[str]:
     """One shell command per job (each agent and seed: train, then evaluate; the expert's row), then the
     command that builds the report from them. The jobs are independent: run them anywhere that shares
     `out`, in any order, and the report last (or at any time, for the runs finished so far)."""
     ep = f" --episodes {episodes}" if episodes else ""
     ep += f" --total-env-steps {total_env_steps}" if total_env_steps else ""
+    ep += presets.set_flag(overrides)
     base = f"mjx-push reproduce --budget {budget} --out {out}{ep}"
     jobs = [f"{base} --job {agent}:{seed}" for seed in range(seeds) for agent in dict.fromkeys(agents)]
     return jobs + [
@@ -302,12 +316,14 @@ def reproduce(
     expert: bool = True,
     report_only: bool = False,
     total_env_steps: int | None = None,
+    overrides: dict | None = None,
 ) -> Path:
     """Train + evaluate every agent for `seeds` seeds (`jobs` of them at a time, in worker processes
     when > 1), and the scripted expert as a baseline row (``expert``); returns the report's path.
     ``report_only``: train nothing; the report holds the runs that have finished (evaluated here if not
-    yet) and names the others. `config_hook` lets tests shrink the runs (it must be picklable when
-    jobs > 1)."""
+    yet) and names the others. `overrides` ({config path: value}) change every agent's configuration
+    and the expert's alike (`--set`). `config_hook` lets tests shrink the runs (it must be picklable
+    when jobs > 1)."""
     if seeds < 1:
         raise ConfigError(f"seeds must be >= 1, got {seeds}")
     for a in agents:
@@ -325,7 +341,7 @@ def reproduce(
             for a, s in items
             if not is_finished(
                 run_dir_of(out, a, s),
-                budget_config(budget, a, s, total_env_steps, config_hook).train.loop.total_env_steps,
+                budget_config(budget, a, s, total_env_steps, config_hook, overrides).train.loop.total_env_steps,
             )
         ]
         items = [i for i in items if i not in missing]
@@ -345,6 +361,7 @@ def reproduce(
                     "config_hook": config_hook,
                     "train": not report_only,
                     "total_env_steps": total_env_steps,
+                    "overrides": overrides,
                 },
             )
         )
@@ -352,7 +369,7 @@ def reproduce(
         calls.append(
             (
                 ("expert", budget, out, episodes, shapes, setting),
-                {"log": log if jobs == 1 else functools.partial(_log_line, "[expert] ")},
+                {"log": log if jobs == 1 else functools.partial(_log_line, "[expert] "), "overrides": overrides},
             )
         )
     summaries = run_jobs(_job, calls, jobs)
@@ -365,8 +382,11 @@ def reproduce(
         results["expert"] = {s: [v] for s, v in summaries[-1].items()}
     meta = {
         "budget": budget,
-        "total_env_steps": budget_config(budget, "vpm", 0, total_env_steps).train.loop.total_env_steps,
+        "total_env_steps": budget_config(
+            budget, "vpm", 0, total_env_steps, overrides=overrides
+        ).train.loop.total_env_steps,
         "budget_total_changed": total_env_steps is not None,
+        "overrides": overrides or {},
         "seeds": seeds,
         "jobs": jobs,
         "episodes": episodes,
