@@ -10,7 +10,10 @@ POLICY is a run directory, a saved policy (best_policy.msgpack), an exported .np
 labels stored (the states the agent itself reaches, DAgger's view), and at every step of every valid
 episode its action is compared with the expert's noise-free action there. Steps are grouped by shape
 (cylinder, square cuboid, rectangular cuboid) and by how far the object still is from its goal
-(``travel`` >= 3 cm, ``finish`` 1-3 cm, ``hold`` < 1 cm: the finish is where 1 cm is won or lost).
+(``travel`` >= 3 cm, ``finish`` 1-3 cm, ``hold`` < 1 cm: the finish is where 1 cm is won or lost),
+and, separately, by the mode the expert acts in at that state (``hold``, ``push``, ``approach``:
+straight to the push point, ``circle``: round the object; its action jumps where the mode switches).
+``share`` is a group's part of its shape's summed error.
 
 The yaw floor: at the same states, the expert's action with a cuboid's yaw replaced by each of
 ``--yaws`` values spread over its symmetry period (90 degrees for a square footprint, 180 for a
@@ -131,23 +134,45 @@ def analyse(run: dict, cfg, yaws: int) -> dict:
     err = np.sum((action - label) ** 2, axis=-1)
     shape = shape_of(priv)
     dist = np.linalg.norm(priv[:, PRIV["object_xy"]] - goal, axis=-1)
-    rows = []
+    modes = expert_modes(cfg, priv, goal)
+
+    def row(m, **key):
+        return {
+            **key,
+            "steps": int(m.sum()),
+            "actor_error": float(err[m].mean()),
+            "actor_error_by_dim": np.mean((action[m] - label[m]) ** 2, axis=0).round(5).tolist(),
+            "yaw_floor": float(floor[m].mean()),
+            # this group's part of the shape's summed cloning error: where the error mass is
+            "error_share": float(err[m].sum() / max(err[shape == key_shape(key)].sum(), 1e-12)),
+        }
+
+    def key_shape(key):
+        return SHAPES.index(key["shape"])
+
+    rows, mode_rows = [], []
     for s, shape_name in enumerate(SHAPES):
         for phase, lo, hi in (("all", 0.0, np.inf), *PHASES):
             m = (shape == s) & (dist >= lo) & (dist < hi)
-            if not m.any():
-                continue
-            rows.append(
-                {
-                    "shape": shape_name,
-                    "phase": phase,
-                    "steps": int(m.sum()),
-                    "actor_error": float(err[m].mean()),
-                    "actor_error_by_dim": np.mean((action[m] - label[m]) ** 2, axis=0).round(5).tolist(),
-                    "yaw_floor": float(floor[m].mean()),
-                }
-            )
-    return {"episodes": int(valid.sum()), "invalid": int((~valid).sum()), "rows": rows, "success": success(run)}
+            if m.any():
+                rows.append(row(m, shape=shape_name, phase=phase))
+        for k, mode_name in enumerate(expert_mod.MODES):
+            m = (shape == s) & (modes == k)
+            if m.any():
+                mode_rows.append(row(m, shape=shape_name, mode=mode_name))
+    return {
+        "episodes": int(valid.sum()),
+        "invalid": int((~valid).sum()),
+        "rows": rows,
+        "mode_rows": mode_rows,
+        "success": success(run),
+    }
+
+
+def expert_modes(cfg, priv: np.ndarray, goal_xy: np.ndarray) -> np.ndarray:
+    """Per state: the index into expert.MODES of the mode the expert acts in there."""
+    gt = expert_ground_truth(jnp.asarray(priv), jnp.asarray(goal_xy))
+    return np.asarray(jax.jit(jax.vmap(lambda g: expert_mod.mode(cfg.expert, g)))(gt))
 
 
 def success(run: dict) -> dict:
@@ -229,14 +254,16 @@ def main(argv=None) -> None:
             title=f"{path} ({policy.config.agent}): actor vs expert, squared error per step "
             f"({res['episodes']} valid episodes, {args.setting})"
         )
-        for col in ("shape", "object-goal", "steps", "actor error", "a_x / a_y / a_s", "yaw floor", "floor / error"):
+        cols = ("shape", "group", "steps", "actor error", "share", "a_x / a_y / a_s", "yaw floor", "floor / error")
+        for col in cols:
             table.add_column(col, justify="right")
-        for r in res["rows"]:
+        for r in res["rows"] + res["mode_rows"]:
             table.add_row(
                 r["shape"],
-                r["phase"],
+                r["phase"] if "phase" in r else f"expert {r['mode']}",
                 str(r["steps"]),
                 f"{r['actor_error']:.3f}",
+                f"{r['error_share']:.2f}",
                 " / ".join(f"{v:.3f}" for v in r["actor_error_by_dim"]),
                 f"{r['yaw_floor']:.3f}",
                 f"{r['yaw_floor'] / max(r['actor_error'], 1e-9):.2f}",

@@ -87,10 +87,26 @@ def _rot(v: jax.Array, a: jax.Array) -> jax.Array:
     return jnp.stack([c * v[0] - s * v[1], s * v[0] + c * v[1]])
 
 
+# The modes `plan` chooses among, by index (`mode`): the cloning error splits along them
+# (benchmarks/bc_gap.py), since the expert's action jumps where it switches mode.
+MODES = ("hold", "push", "approach", "circle")
+
+
 def act(cfg: ExpertConfig, env: EnvConfig, gt: dict) -> jax.Array:
     """The action (a_x, a_y, a_s) in [-1, 1]^3 for one environment. ``gt`` holds ``ee_xy`` (true flange
     xy), ``object_xy``, ``object_yaw``, ``goal_xy``, ``size`` (the geom size: box half extents or
     cylinder radius first) and ``is_box``."""
+    disp, m = plan(cfg, gt)
+    return displacement_action(cfg, env, disp, short=(m == 0) & cfg.hold_short)
+
+
+def mode(cfg: ExpertConfig, gt: dict) -> jax.Array:
+    """The index into MODES of the mode the expert acts in for one environment's ``gt``."""
+    return plan(cfg, gt)[1]
+
+
+def plan(cfg: ExpertConfig, gt: dict) -> tuple[jax.Array, jax.Array]:
+    """The flange displacement the expert asks for, and the index into MODES of the mode it chose."""
     ee, obj, goal = gt["ee_xy"], gt["object_xy"], gt["goal_xy"]
     size, is_box, yaw = gt["size"], gt["is_box"], gt["object_yaw"]
     rod = scene.ROD_RADIUS
@@ -123,7 +139,8 @@ def act(cfg: ExpertConfig, env: EnvConfig, gt: dict) -> jax.Array:
 
     hold = dist < cfg.hold_radius
     disp = jnp.where(hold, jnp.zeros(2), jnp.where(on_line, push, move))
-    return displacement_action(cfg, env, disp, short=hold & cfg.hold_short)
+    m = jnp.where(hold, 0, jnp.where(on_line, 1, jnp.where(straight, 2, 3)))
+    return disp, m
 
 
 def displacement_action(cfg: ExpertConfig, env: EnvConfig, disp: jax.Array, short: jax.Array) -> jax.Array:

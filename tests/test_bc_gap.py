@@ -66,3 +66,20 @@ def test_yaw_floor_is_zero_for_cylinders_and_positive_for_cuboids():
         np.testing.assert_allclose(first[i], np.asarray(expert.act(CFG.expert, CFG.env, _gt(p))), atol=1e-6)
     assert floor[0] == pytest.approx(0.0, abs=1e-10)
     assert floor[1] > 0 and floor[2] > floor[1]  # a longer, thinner footprint: more depends on its yaw
+
+
+def test_expert_modes_name_what_the_expert_does_at_each_state():
+    from benchmarks.bc_gap import expert_modes
+
+    states = {
+        "hold": _priv([0.599, 0.1], 0.0, [0.55, 0.05], [0.03, 0.03, 0.03], False),  # 1.4 mm from the goal
+        "push": _priv([0.5, 0.0], 0.0, [0.5 - 0.05 / np.sqrt(2), -0.05 / np.sqrt(2)], [0.03, 0.03, 0.03], False),
+        "approach": CYL,  # on the push line, 7 cm behind the object: straight in to the push point
+        "circle": _priv([0.5, 0.0], 0.0, [0.55, 0.05], [0.03, 0.03, 0.03], False),  # between object and goal
+    }
+    priv = np.stack(list(states.values()))
+    modes = expert_modes(CFG, priv, np.broadcast_to(GOAL, (4, 2)))
+    assert [expert.MODES[k] for k in modes] == list(states)
+    # The action is the one of the displacement that mode plans: none while holding.
+    disp, m = expert.plan(CFG.expert, _gt(states["hold"]))
+    assert int(m) == 0 and np.allclose(np.asarray(disp), 0.0)
