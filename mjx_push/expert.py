@@ -44,6 +44,10 @@ class ExpertConfig:
     max_move: float = 0.05  # m per step while repositioning
     max_push: float = 0.02  # m per step while pushing
     push_lead: float = 0.0  # m pushed beyond the remaining distance (heavy objects lag the rod)
+    # Each push covers this fraction of the remaining distance (1: all of it). Below 1 the object
+    # closes on its goal geometrically, so a light one that slides on after the rod stops overshoots
+    # less, and a cloner's error in the distance it reads costs less.
+    push_fraction: float = 1.0
     hold_radius: float = 0.003  # m: closer than this, stand still
     # Stand still with the shortest step (True) or with the other modes' step length (False): the same
     # stillness, but a cloner's a_s label no longer jumps from about 0.8 to -1 at the hold radius.
@@ -62,6 +66,8 @@ class ExpertConfig:
             raise ConfigError(f"expert.settle must be in (0, 1), got {self.settle}")
         if not isinstance(self.hold_short, bool):
             raise ConfigError(f"expert.hold_short must be a bool, got {self.hold_short!r}")
+        if not 0 < self.push_fraction <= 1:
+            raise ConfigError(f"expert.push_fraction must be in (0, 1], got {self.push_fraction}")
         if self.push_lead < 0 or self.dead_substeps < 0:
             raise ConfigError("expert.push_lead and expert.dead_substeps must be >= 0")
 
@@ -124,7 +130,7 @@ def plan(cfg: ExpertConfig, gt: dict) -> tuple[jax.Array, jax.Array]:
 
     # Push: the remaining distance along u, capped; slide sideways onto the line through the centre.
     lateral = jnp.dot(rel, n)
-    push = u * jnp.minimum(dist + cfg.push_lead, cfg.max_push) - 0.5 * lateral * n
+    push = u * jnp.minimum(cfg.push_fraction * dist + cfg.push_lead, cfg.max_push) - 0.5 * lateral * n
 
     # Reposition: straight to the push point when nearly behind, else round the object on a circle.
     push_point = obj - u * (behind_r + cfg.gap)

@@ -64,6 +64,29 @@ def test_hold_stands_still_with_short_steps_or_with_the_usual_length():
         expert.ExpertConfig(hold_short=1)
 
 
+def test_push_fraction_pushes_a_share_of_the_remaining_distance():
+    r = 0.005 / math.sqrt(2)  # the goal 5 mm ahead along (1, 1); the rod touching the object from behind
+    back = (0.03 + 0.0075) / math.sqrt(2)  # rod centre: object radius + rod radius (scene.ROD_RADIUS)
+    gt = {
+        "ee_xy": jnp.array([0.5 - back, -back]),
+        "object_xy": jnp.array([0.5, 0.0]),
+        "object_yaw": jnp.asarray(0.0),
+        "goal_xy": jnp.array([0.5 + r, r]),
+        "size": jnp.array([0.03, 0.03, 0.03]),
+        "is_box": jnp.asarray(False),
+    }
+    for f in (1.0, 0.6):
+        disp, m = expert.plan(expert.ExpertConfig(push_fraction=f), gt)
+        assert expert.MODES[int(m)] == "push"
+        np.testing.assert_allclose(np.asarray(disp), [f * r, f * r], atol=1e-6)
+    far = {**gt, "goal_xy": jnp.array([0.6, 0.1])}  # 14 cm: the step cap, whatever the fraction
+    disp, _ = expert.plan(expert.ExpertConfig(push_fraction=0.6), far)
+    assert float(jnp.linalg.norm(disp)) == pytest.approx(expert.ExpertConfig().max_push, rel=1e-5)
+    for bad in (0.0, 1.5):
+        with pytest.raises(ValueError, match="expert.push_fraction"):
+            expert.ExpertConfig(push_fraction=bad)
+
+
 @pytest.fixture(scope="module")
 def expert_policy():
     return ExpertPolicy(presets.make("vpm", "cpu"))
