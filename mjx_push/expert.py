@@ -26,6 +26,7 @@ Everything is a pure function of one environment's ground truth (vmap it for a b
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import jax
 import jax.numpy as jnp
@@ -41,6 +42,11 @@ class ExpertConfig:
     clearance: float = 0.015  # rod surface to the object's bounding circle while going round it (m)
     approach_angle: float = 0.6  # rad: within this of the push line, go straight to the push point
     line_tolerance: float = 0.35  # rad: pushing continues while the rod is this close to the line
+    # Where (angle off the push line, rad) the way round the object changes side. pi: the short way,
+    # but then a rod right in front of the object (where it stands after an overshoot) goes round
+    # either side on a hair's difference, and a cloner averages the two into standing still. Below
+    # pi, every angle beyond it goes round the same side as the angles just short of it.
+    circle_cut: float = math.pi
     max_move: float = 0.05  # m per step while repositioning
     max_push: float = 0.02  # m per step while pushing
     push_lead: float = 0.0  # m pushed beyond the remaining distance (heavy objects lag the rod)
@@ -66,6 +72,8 @@ class ExpertConfig:
             raise ConfigError(f"expert.settle must be in (0, 1), got {self.settle}")
         if not isinstance(self.hold_short, bool):
             raise ConfigError(f"expert.hold_short must be a bool, got {self.hold_short!r}")
+        if not 0 < self.circle_cut <= math.pi:
+            raise ConfigError(f"expert.circle_cut must be in (0, pi], got {self.circle_cut}")
         if not 0 < self.push_fraction <= 1:
             raise ConfigError(f"expert.push_fraction must be in (0, 1], got {self.push_fraction}")
         if self.push_lead < 0 or self.dead_substeps < 0:
@@ -137,7 +145,9 @@ def plan(cfg: ExpertConfig, gt: dict) -> tuple[jax.Array, jax.Array]:
     circle_r = bounding_radius(size, is_box) + rod + cfg.clearance
     step_angle = cfg.max_move / circle_r
     # (-u, n) is a left-handed frame: turning rel counter-clockwise by a lowers off by a.
-    turn = jnp.clip(off, -step_angle, step_angle)  # towards off = 0, the short way round
+    # The signed angle still to turn: off itself (the short way), or the long way past the cut.
+    to_turn = jnp.where(off > cfg.circle_cut, off - 2 * jnp.pi, off)
+    turn = jnp.clip(to_turn, -step_angle, step_angle)  # towards off = 0, never across the cut
     way = obj + circle_r * _rot(_unit(rel, -u), turn)
     straight = jnp.abs(off) < cfg.approach_angle
     move = jnp.where(straight, push_point - ee, way - ee)

@@ -87,6 +87,37 @@ def test_push_fraction_pushes_a_share_of_the_remaining_distance():
             expert.ExpertConfig(push_fraction=bad)
 
 
+def test_circle_cut_sends_the_rod_round_one_side_from_in_front_of_the_object():
+    """The rod between the object and its goal (after an overshoot): the short way round flips side on
+    a millimetre, a cut below pi does not; either way the rod goes round, never through the object."""
+    gt = {
+        "object_xy": jnp.array([0.5, 0.0]),
+        "object_yaw": jnp.asarray(0.0),
+        "goal_xy": jnp.array([0.6, 0.0]),
+        "size": jnp.array([0.03, 0.03, 0.03]),
+        "is_box": jnp.asarray(False),
+    }
+
+    def move(cfg, x, y):
+        disp, m = expert.plan(cfg, {**gt, "ee_xy": jnp.array([x, y])})
+        assert expert.MODES[int(m)] == "circle"
+        return np.asarray(disp)
+
+    def sideways(cfg, y):  # the y of the rod's move from (0.55, y): which side it goes round
+        return float(move(cfg, 0.55, y)[1])
+
+    short, cut = expert.ExpertConfig(), expert.ExpertConfig(circle_cut=2.2)
+    assert sideways(short, 0.002) > 0 > sideways(short, -0.002)  # the short way: either side
+    assert sideways(cut, 0.002) < 0 and sideways(cut, -0.002) < 0  # one side
+    assert sideways(cut, 0.01) < 0 and sideways(cut, -0.01) < 0
+    # Beside the object (90 degrees off the line, short of the cut): the short way, back behind it.
+    np.testing.assert_allclose(move(cut, 0.5, 0.05), move(short, 0.5, 0.05))
+    assert move(cut, 0.5, 0.05)[0] < 0
+    for bad in (0.0, 4.0):
+        with pytest.raises(ValueError, match="expert.circle_cut"):
+            expert.ExpertConfig(circle_cut=bad)
+
+
 @pytest.fixture(scope="module")
 def expert_policy():
     return ExpertPolicy(presets.make("vpm", "cpu"))
