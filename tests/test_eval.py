@@ -537,18 +537,18 @@ def test_reproduce_set_changes_every_agent_and_the_expert_and_its_plan_carries_i
     from train import presets
     from train import reproduce as rep
 
-    overrides = presets.parse_overrides(["expert.hold_short=false", "env.substeps=[10,600]"])
+    overrides = presets.parse_overrides(["expert.hold_short=true", "env.substeps=[10,600]"])
     for agent in rep.AGENTS:
         cfg = rep.budget_config("cpu-long", agent, 1, overrides=overrides)
-        assert cfg.expert.hold_short is False and cfg.env.substeps == (10, 600) and cfg.train.agent.kind == agent
-    assert rep.budget_config("cpu-long", "vpm", 0).expert.hold_short  # the budget's own expert otherwise
+        assert cfg.expert.hold_short is True and cfg.env.substeps == (10, 600) and cfg.train.agent.kind == agent
+    assert not rep.budget_config("cpu-long", "vpm", 0).expert.hold_short  # the budget's own expert otherwise
     line = rep.plan("cpu-long", 1, tmp_path, ("vpm",), overrides=overrides)[0]
-    assert line.endswith(" --set expert.hold_short=false 'env.substeps=[10,600]' --job vpm:0")
+    assert line.endswith(" --set expert.hold_short=true 'env.substeps=[10,600]' --job vpm:0")
     assert presets.parse_overrides(shlex.split(line.split(" --set ")[1])[:-2]) == overrides  # round trip
     plan_file = tmp_path / "plan.txt"
     args = ["reproduce", "--budget", "cpu-long", "--out", str(tmp_path), "--plan", str(plan_file)]
-    assert cli_main([*args, "--set", "expert.hold_short=false"]) == 0
-    assert all("--set expert.hold_short=false" in cmd for cmd in plan_file.read_text().splitlines())
+    assert cli_main([*args, "--set", "expert.hold_short=true"]) == 0
+    assert all("--set expert.hold_short=true" in cmd for cmd in plan_file.read_text().splitlines())
     for bad, says in (("expert.hold_shrt=false", "no field 'hold_shrt'"), ("train.sac.lr=abc", "must be a number")):
         assert cli_main([*args, "--set", bad]) == 2
         assert says in capsys.readouterr().err, bad

@@ -516,7 +516,7 @@ class Reproduce:
     for the evaluation at their earlier end)"""
     set: Annotated[tuple[str, ...], tyro.conf.arg(metavar="PATH=VALUE", help_behavior_hint="(default: none)")] = ()
     """override a field of every agent's run configuration and the expert's (config.json's paths;
-    values in JSON), e.g. --set expert.hold_short=false: the comparison under a variant (use its own
+    values in JSON), e.g. --set expert.hold_short=true: the comparison under a variant (use its own
     --out: a finished run of another configuration is refused)"""
 
     def overrides(self) -> dict:
