@@ -5,11 +5,13 @@ It knows what no policy observes (the object's exact pose, size and shape, the g
 true position) and plans one environment step at a time, in three modes:
 
 * **reposition**: get the rod to a point just behind the object on the goal->object line. If the
-  rod is far round the object it travels on a circle clear of it (a few tens of degrees per step)
-  and goes straight in once it is within ``approach_angle`` of the push line.
-* **push**: move the rod along the object->goal direction by the remaining distance, at most
-  ``max_push`` per step (slow enough that light objects decelerate with the rod instead of sliding
-  on), with a sideways correction that keeps the rod on the line through the object's centre.
+  rod is far round the object it travels on a circle clear of it (a few tens of degrees per step;
+  the short way, or past ``circle_cut`` always the same side) and goes straight in once it is
+  within ``approach_angle`` of the push line.
+* **push**: move the rod along the object->goal direction by the remaining distance (or
+  ``push_fraction`` of it), at most ``max_push`` per step (slow enough that light objects decelerate
+  with the rod instead of sliding on), with a sideways correction that keeps the rod on the line
+  through the object's centre.
 * **hold**: once the object is within ``hold_radius`` of the goal, stand still (short steps, or with
   ``hold_short`` off steps as long as the other modes', so a_s does not jump at the hold radius).
 
