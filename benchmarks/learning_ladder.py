@@ -47,14 +47,13 @@ _BUDGET = {
     "expert.hold_short": True,  # the teacher the rungs were measured with (the cpu preset now holds steady)
 }
 _5CM = {"env.success_tau": 0.05}  # the learner's relabelling radius follows it
-# The README's main job as it is now (the cpu preset of 35,200 env steps, the steady hold, one-sided circle),
+# The README's main job as it is now (the cpu preset of 35,200 env steps, the steady-hold teacher),
 # with the rungs' in-run evaluations so a learner's curve shows.
 _MAIN = {
     "train.loop.total_env_steps": 35_200,
     "train.loop.eval_every_env_steps": 8_800,
     "train.loop.eval_episodes": 64,
     "expert.hold_short": False,
-    "expert.circle_cut": 2.2,
 }
 RUNGS: dict[str, tuple[str, str, dict]] = {
     "vpm-5cm": ("vpm", "cpu", {**_BUDGET, **_5CM}),

@@ -142,7 +142,7 @@ def _preset_arg(metavar: str):
 class Train:
     """Train a pushing agent (SAC + HER) on the MJX scene: logs, checkpoints, best policy in --run-dir.
 
-    Presets: cpu (the default: learns to push in under 10 minutes on 2 CPU cores: 6 to 7 of 10 objects end
+    Presets: cpu (the default: learns to push in under 10 minutes on 2 CPU cores: 6 of 10 objects end
     within 1 cm), cpu-long (25-30 minutes, for 1 cm), smoke (minutes, proves the pipeline), reference (the reference code's one
     call of its training script: 29,000 env steps with its action box and learner), paper (millions of
     env steps, sized for one GPU). Any option left unset keeps the preset's value. Ctrl-C (or
