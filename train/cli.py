@@ -228,8 +228,8 @@ class Train:
         if self.set:
             try:
                 cfg = presets.with_overrides(cfg, presets.parse_overrides(self.set))
-            except ValueError as e:  # unknown paths name themselves; a bad value names its field
-                raise ConfigError(str(e) if str(e).startswith("--set") else f"--set: {e}") from None
+            except ValueError as e:
+                raise _set_error(e) from None
         return cfg
 
     def _flag_names(self) -> dict[str, str]:
@@ -483,6 +483,11 @@ class Eval(EvalOptions):
         Console().print(f"video: {video.write(frames, self.video)} ({len(frames)} frames)")
 
 
+def _set_error(e: ValueError) -> ConfigError:
+    """A refused `--set` (train's and reproduce's): unknown paths name themselves; a bad value names its field."""
+    return ConfigError(str(e) if str(e).startswith("--set") else f"--set: {e}")
+
+
 @dataclasses.dataclass
 class Reproduce:
     """Train VPM, Stacked, uGRU and eGRU, evaluate each on the difficult case per shape (cylinder,
@@ -528,8 +533,8 @@ class Reproduce:
             overrides = presets.parse_overrides(self.set)
             for agent in self.agents:
                 rep.budget_config(self.budget, agent, 0, overrides=overrides)
-        except ValueError as e:  # unknown paths name themselves; a bad value names its field
-            raise ConfigError(str(e) if str(e).startswith("--set") else f"--set: {e}") from None
+        except ValueError as e:
+            raise _set_error(e) from None
         return overrides
 
     def run(self) -> None:

@@ -271,8 +271,8 @@ is the one evaluated above):
     seeds = meta.get("seeds", 1)
     err = "standard error across seeds" if seeds > 1 else "standard error over test episodes"
     total_flag = f" --total-env-steps {meta['total_env_steps']}" if meta.get("budget_total_changed") else ""
-    total_flag += presets.set_flag(meta.get("overrides"))
     budget_name = meta.get("budget", "?") + (f" ({meta['total_env_steps']:,} env steps)" if total_flag else "")
+    total_flag += presets.set_flag(meta.get("overrides"))
     text = f"""# mjx-push reproduction: {budget_name} budget
 
 Agents trained with `mjx-push reproduce --budget {meta.get("budget")} --seeds {seeds}{total_flag}`, each evaluated on
