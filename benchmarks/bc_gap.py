@@ -13,7 +13,11 @@ episode its action is compared with the expert's noise-free action there. Steps 
 (``travel`` >= 3 cm, ``finish`` 1-3 cm, ``hold`` < 1 cm: the finish is where 1 cm is won or lost),
 and, separately, by the mode the expert acts in at that state (``hold``, ``push``, ``approach``:
 straight to the push point, ``circle``: round the object; its action jumps where the mode switches).
-``share`` is a group's part of its shape's summed error.
+``share`` is a group's part of its shape's summed error. The ``circle`` steps are split once more by
+how far round the object the rod stands (its angle off the push line, ``ANGLE_BINS``), with the share
+of them where the actor turns round the object the other way from the expert (``other side``): near
+180 degrees, right in front of the object, the expert's short way round changes side on a hair's
+difference, and a cloner that cannot place that hair averages the two ways into standing still.
 
 The yaw floor: at the same states, the expert's action with a cuboid's yaw replaced by each of
 ``--yaws`` values spread over its symmetry period (90 degrees for a square footprint, 180 for a
@@ -53,6 +57,8 @@ from train.rollout import REPORT_RADII
 SHAPES = ("cylinder", "square", "rectangular")
 PHASES = (("travel", 0.03, np.inf), ("finish", 0.01, 0.03), ("hold", 0.0, 0.01))
 SQUARE_TOL = 1e-3  # m: half extents closer than this make a square footprint
+# Bins of the rod's angle off the push line (degrees) for the circling steps: 180 is right in front.
+ANGLE_BINS = ((0, 90), (90, 135), (135, 160), (160, 181))
 
 
 def play(config, actor_params, encoder_params, setting: str, seed: int, episodes: int, expert=None, shape="any"):
@@ -135,6 +141,7 @@ def analyse(run: dict, cfg, yaws: int) -> dict:
     shape = shape_of(priv)
     dist = np.linalg.norm(priv[:, PRIV["object_xy"]] - goal, axis=-1)
     modes = expert_modes(cfg, priv, goal)
+    off, turn_actor, turn_label = circling(priv, goal, action, label)
 
     def row(m, **key):
         return {
@@ -150,7 +157,7 @@ def analyse(run: dict, cfg, yaws: int) -> dict:
     def key_shape(key):
         return SHAPES.index(key["shape"])
 
-    rows, mode_rows = [], []
+    rows, mode_rows, circle_rows = [], [], []
     for s, shape_name in enumerate(SHAPES):
         for phase, lo, hi in (("all", 0.0, np.inf), *PHASES):
             m = (shape == s) & (dist >= lo) & (dist < hi)
@@ -160,13 +167,38 @@ def analyse(run: dict, cfg, yaws: int) -> dict:
             m = (shape == s) & (modes == k)
             if m.any():
                 mode_rows.append(row(m, shape=shape_name, mode=mode_name))
+        circle = (shape == s) & (np.asarray(expert_mod.MODES)[modes] == "circle")
+        for lo, hi in ANGLE_BINS:
+            m = circle & (off >= lo) & (off < hi)
+            if m.any():
+                # the expert turns (its tangential offset is at least a tenth of the box) and the actor
+                # turns the other way round the object
+                other = (np.abs(turn_label[m]) > 0.1) & (np.sign(turn_actor[m]) != np.sign(turn_label[m]))
+                circle_rows.append(
+                    {**row(m, shape=shape_name, off_deg=[lo, min(hi, 180)]), "other_side": float(other.mean())}
+                )
     return {
         "episodes": int(valid.sum()),
         "invalid": int((~valid).sum()),
         "rows": rows,
         "mode_rows": mode_rows,
+        "circle_rows": circle_rows,
         "success": success(run),
     }
+
+
+def circling(priv: np.ndarray, goal_xy: np.ndarray, action: np.ndarray, label: np.ndarray):
+    """Per state: the rod's angle off the push line (degrees, 0 right behind the object, 180 right in
+    front of it), and the actor's and the expert's a_xy across the object->rod direction (positive:
+    counter-clockwise round the object), in the action box's units."""
+    rel = priv[:, PRIV["ee_xy"]] - priv[:, PRIV["object_xy"]]
+    to_goal = goal_xy - priv[:, PRIV["object_xy"]]
+    u = to_goal / np.maximum(np.linalg.norm(to_goal, axis=-1, keepdims=True), 1e-9)
+    n = np.stack([-u[:, 1], u[:, 0]], axis=-1)
+    off = np.degrees(np.abs(np.arctan2(np.sum(rel * n, -1), -np.sum(rel * u, -1))))
+    r = rel / np.maximum(np.linalg.norm(rel, axis=-1, keepdims=True), 1e-9)
+    tangent = np.stack([-r[:, 1], r[:, 0]], axis=-1)
+    return off, np.sum(action[:, :2] * tangent, -1), np.sum(label[:, :2] * tangent, -1)
 
 
 def expert_modes(cfg, priv: np.ndarray, goal_xy: np.ndarray) -> np.ndarray:
@@ -205,6 +237,15 @@ def experts(setting: str, seed: int, episodes: int, yaws: int, shape: str = "any
         run, _ = play(cfg, actor_params, encoder_params, setting, seed, episodes, expert=fn, shape=shape)
         out[name] = success(run)
     return out
+
+
+def group_name(r: dict) -> str:
+    if "phase" in r:
+        return r["phase"]
+    if "mode" in r:
+        return f"expert {r['mode']}"
+    lo, hi = r["off_deg"]
+    return f"circle {lo}-{hi} deg, {100 * r['other_side']:.0f} % other side"
 
 
 def main(argv=None) -> None:
@@ -257,10 +298,10 @@ def main(argv=None) -> None:
         cols = ("shape", "group", "steps", "actor error", "share", "a_x / a_y / a_s", "yaw floor", "floor / error")
         for col in cols:
             table.add_column(col, justify="right")
-        for r in res["rows"] + res["mode_rows"]:
+        for r in res["rows"] + res["mode_rows"] + res["circle_rows"]:
             table.add_row(
                 r["shape"],
-                r["phase"] if "phase" in r else f"expert {r['mode']}",
+                group_name(r),
                 str(r["steps"]),
                 f"{r['actor_error']:.3f}",
                 f"{r['error_share']:.2f}",

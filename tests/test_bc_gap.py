@@ -83,3 +83,20 @@ def test_expert_modes_name_what_the_expert_does_at_each_state():
     # The action is the one of the displacement that mode plans: none while holding.
     disp, m = expert.plan(CFG.expert, _gt(states["hold"]))
     assert int(m) == 0 and np.allclose(np.asarray(disp), 0.0)
+
+
+def test_circling_reads_the_rods_angle_off_the_push_line_and_which_way_an_action_turns():
+    from benchmarks.bc_gap import circling
+
+    obj = [0.5, 0.0]  # the goal at +x from it: the push line runs along x, behind is -x
+    goal = np.broadcast_to(np.array([0.6, 0.0], np.float32), (3, 2))
+    priv = np.stack([_priv(obj, 0.0, ee, [0.03, 0.03, 0.03], False) for ee in ([0.4, 0.0], [0.5, 0.1], [0.58, 0.0])])
+    off, _, label_turn = circling(priv, goal, np.zeros((3, 3)), np.zeros((3, 3)))
+    np.testing.assert_allclose(off, [0.0, 90.0, 180.0], atol=1e-4)  # behind, beside, right in front
+    # The expert's own way round from in front (its circling step), against an actor that goes the
+    # other way: opposite signs across the object->rod direction.
+    front = priv[2]
+    label = np.asarray(expert.act(CFG.expert, CFG.env, expert_ground_truth(jnp.asarray(front), jnp.asarray(goal[0]))))
+    mirrored = label * np.array([1.0, -1.0, 1.0])  # the same step mirrored across the push line
+    _, actor_turn, label_turn = circling(front[None], goal[:1], mirrored[None], label[None])
+    assert abs(label_turn[0]) > 0.1 and np.sign(actor_turn[0]) == -np.sign(label_turn[0])
