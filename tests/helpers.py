@@ -144,13 +144,15 @@ def toy_run_config(encoder, kind="ugru", seed=0):
     )
 
 
-def latest_state(run_dir, cfg, adapter):
-    """The TrainState of a run's latest checkpoint (`adapter`: the environment it trained on)."""
+def latest_state(run_dir, cfg, adapter, step=None):
+    """The TrainState of a run's latest checkpoint, or the one at `step` (`adapter`: the environment it
+    trained on)."""
     from train import checkpoints
     from train.loop import make_train
 
     trainer = make_train(cfg.train, adapter)
-    return checkpoints.Checkpoints(Path(run_dir) / "checkpoints").restore(trainer.init(jax.random.PRNGKey(0)), cfg)[0]
+    template = trainer.init(jax.random.PRNGKey(0))
+    return checkpoints.Checkpoints(Path(run_dir) / "checkpoints").restore(template, cfg, step)[0]
 
 
 def renderer_or_skip() -> None:

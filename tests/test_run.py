@@ -416,3 +416,109 @@ def test_progress_lines_report_success_reward_and_final_distance():
     line = out.getvalue()
     assert "500 env steps: train success 10% reward -45.0 final dist 8.8 cm" in line
     assert "eval success 25% reward -40.0 final dist 12.3 cm" in line
+
+
+def _forked_config(cfg, total=280, seed=5, **demo):
+    """`cfg` trained on to `total` with the teacher annealed away over 200-240 env steps, anchored."""
+    loop = dataclasses.replace(cfg.train.loop, total_env_steps=total, seed=seed)
+    sac = dataclasses.replace(cfg.train.sac, anchor_weight=1.0)
+    demo = dataclasses.replace(cfg.train.demo, **({"anneal_start": 200, "anneal_end": 240} | demo))
+    return dataclasses.replace(cfg, train=dataclasses.replace(cfg.train, loop=loop, sac=sac, demo=demo))
+
+
+def _tree_snapshot(d: Path) -> dict:
+    return {p: (p.stat().st_mtime_ns, p.stat().st_size) for p in d.rglob("*") if p.name != ".lock"}
+
+
+def test_a_fork_starts_from_the_checkpoint_with_new_settings_and_resumes_exactly(full_run, tmp_path, toy):
+    """`fork`: the source's state at the checkpoint, its own best actor, anchor and random numbers,
+    env steps counted on, the source untouched; an interrupted fork resumes to the uninterrupted one."""
+    from train.fork import ForkSource
+
+    cfg, d, _, _ = full_run
+    fcfg = _forked_config(cfg)
+    before = _tree_snapshot(d)
+    source = jax.device_get(latest_state(d, cfg, toy, step=160))
+    f = tmp_path / "fork"
+    partial, _ = run_mod.run(fcfg, f, adapter=toy, fork=ForkSource(d, 160), stop_after=1)
+    assert partial["stopped_at_env_steps"] == 200
+    start = jax.device_get(latest_state(f, fcfg, toy, step=160))
+    for part in ("sac", "buffer", "norm_stats", "env_steps"):
+        for (path, a), b in zip(
+            jax.tree_util.tree_leaves_with_path(getattr(start, part)), jax.tree.leaves(getattr(source, part))
+        ):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b), err_msg=part + jax.tree_util.keystr(path))
+    assert int(start.best_env_steps) == -1 and float(start.best_eval_reward) == -np.inf
+    jax.tree.map(np.testing.assert_array_equal, start.anchor_actor_params, source.sac.actor_params)
+    jax.tree.map(np.testing.assert_array_equal, start.best_actor_params, source.sac.actor_params)
+    assert not np.array_equal(np.asarray(start.key), np.asarray(source.key))
+
+    summary, state = run_mod.run(fcfg, f, adapter=toy, resume=True)
+    assert summary["env_steps"] == 280 and summary["forked_from"]["env_steps"] == 160
+    record = json.loads((f / "forked_from.json").read_text())
+    assert record["run_dir"] == str(d.absolute()) and record["env_steps"] == 160
+    assert any(c.startswith("train.demo.anneal_start:") for c in record["changes"])
+    with (f / "metrics.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert [int(float(r["env_steps"])) for r in rows] == [200, 240, 280]
+    assert [float(r["demo/teacher_scale"]) for r in rows] == [1.0, 0.0, 0.0]
+    assert int(state.best_env_steps) in (240, 280)  # only the fork's own evaluations count
+    assert _tree_snapshot(d) == before  # the source is only read
+
+    whole, whole_state = run_mod.run(fcfg, tmp_path / "whole", adapter=toy, fork=ForkSource(d, 160))
+    for (path, a), b in zip(
+        jax.tree_util.tree_leaves_with_path(jax.device_get(state)), jax.tree.leaves(jax.device_get(whole_state))
+    ):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b), err_msg=jax.tree_util.keystr(path))
+
+
+def test_a_fork_that_cannot_start_is_refused_before_anything_is_written(full_run, tmp_path, toy):
+    from train.fork import ForkSource
+
+    cfg, d, _, _ = full_run
+    f = tmp_path / "fork"
+    bigger = dataclasses.replace(
+        cfg, train=dataclasses.replace(cfg.train, agent=dataclasses.replace(cfg.train.agent, hidden=(64, 64)))
+    )
+    cases = [
+        (_forked_config(bigger), ForkSource(d), r"keeps its source's networks.*train\.agent\.hidden"),
+        (_forked_config(cfg, total=200, anneal_start=160, anneal_end=200), ForkSource(d), "must exceed"),
+        (_forked_config(cfg), ForkSource(d, 120), r"no checkpoint at 120 env steps \(it has: 160, 200\)"),
+        (_forked_config(cfg), ForkSource(tmp_path / "nothing"), "not a run directory"),
+    ]
+    for fcfg, source, message in cases:
+        with pytest.raises(ValueError, match=message):
+            run_mod.run(fcfg, f, adapter=toy, fork=source)
+        assert not f.exists()
+    with pytest.raises(ValueError, match="pass one of them"):
+        run_mod.run(_forked_config(cfg), d, adapter=toy, fork=ForkSource(d), resume=True)
+
+
+def test_train_command_forks_a_run_with_the_options_given(full_run, tmp_path, monkeypatch, capsys):
+    cfg, d, _, _ = full_run
+    seen = {}
+
+    def forked_run(cfg, run_dir, **kwargs):
+        seen.update(cfg=cfg, run_dir=run_dir, **kwargs)
+        return {"best_eval_mean_reward": -1.0, "best_eval_success_rate": 1.0, "best_env_steps": 240}, None
+
+    monkeypatch.setattr(run_mod, "run", forked_run)
+    args = ["train", "--fork-from", str(d), "--fork-step", "160", "--total-env-steps", "280", "--seed", "3"]
+    set_ = ["--set", "train.demo.anneal_start=200", "train.demo.anneal_end=240", "train.sac.anchor_weight=1"]
+    assert cli_main([*args, *set_]) == 0
+    out = capsys.readouterr().out
+    assert seen["fork"].run_dir == d and seen["fork"].env_steps == 160 and seen["run_dir"] == Path(f"{d}-fork")
+    assert seen["cfg"] == _forked_config(cfg, seed=3)  # the source's configuration, changed by the options
+    assert "forked from" in out and "train.demo.anneal_start: None != 200" in out
+    # Bad combinations: a clear message each, nothing run.
+    seen.clear()
+    bad = [
+        (["train", "--fork-step", "160"], "pass --fork-from too"),
+        (["train", "--fork-from", str(d), "--resume", "--run-dir", str(tmp_path)], "pass one of them"),
+        (["train", "--fork-from", str(d), "--agent", "egru", "--total-env-steps", "280"], "keeps its source's agent"),
+        (["train", "--fork-from", str(d), "--run-dir", str(tmp_path / "f")], "must exceed"),
+    ]
+    for argv, message in bad:
+        assert cli_main(argv) == 2, argv
+        assert message in capsys.readouterr().err
+    assert not seen

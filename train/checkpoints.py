@@ -27,13 +27,14 @@ ADDED_FIELDS = ("anchor_actor_params",)
 class Checkpoints:
     """Orbax checkpoints of a TrainState, keyed by environment steps, the last `keep` kept."""
 
-    def __init__(self, directory: Path, keep: int = 2):
+    def __init__(self, directory: Path, keep: int = 2, read_only: bool = False):
+        """`read_only`: only read (a fork's source, which may be training): its unfinished writes stay."""
         self.directory = Path(directory).absolute()
         # A checkpoint is written into a temporary directory and renamed when complete, so a kill mid-write
         # leaves the previous checkpoint as the latest; such leftovers are removed here, before the manager
         # starts. (Orbax's own cleanup runs in a background thread: two managers of one directory in a
         # process, e.g. a check of the latest step and then a resume, raced to delete the same folder.)
-        for leftover in self.directory.glob("*.orbax-checkpoint-tmp*"):
+        for leftover in () if read_only else self.directory.glob("*.orbax-checkpoint-tmp*"):
             shutil.rmtree(leftover, ignore_errors=True)
         options = ocp.CheckpointManagerOptions(
             max_to_keep=keep, enable_async_checkpointing=False, create=True, cleanup_tmp_directories=False

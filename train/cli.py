@@ -146,12 +146,18 @@ class Train:
     within 1 cm), cpu-long (25-30 minutes, for 1 cm), smoke (minutes, proves the pipeline), reference (the reference code's one
     call of its training script: 29,000 env steps with its action box and learner), paper (millions of
     env steps, sized for one GPU). Any option left unset keeps the preset's value. Ctrl-C (or
-    SIGTERM) stops after the current batch with a checkpoint; --resume continues it."""
+    SIGTERM) stops after the current batch with a checkpoint; --resume continues it. --fork-from starts
+    a new run from another run's checkpoint with changed settings (e.g. the teacher annealed away)."""
 
-    agent: AgentKind = "vpm"
-    """vpm (the default: the cheapest to train on a CPU), stacked, ugru, egru (the paper's proposal)"""
-    preset: Preset = "cpu"
-    seed: int = 0
+    agent: Annotated[
+        AgentKind | None, tyro.conf.arg(metavar="{vpm,stacked,ugru,egru}", help_behavior_hint="(default: vpm)")
+    ] = None
+    """vpm (the cheapest to train on a CPU), stacked, ugru, egru (the paper's proposal)"""
+    preset: Annotated[
+        Preset | None,
+        tyro.conf.arg(metavar="{smoke,cpu,cpu-long,reference,paper}", help_behavior_hint="(default: cpu)"),
+    ] = None
+    seed: Annotated[int | None, tyro.conf.arg(metavar="INT", help_behavior_hint="(default: 0)")] = None
     run_dir: Annotated[
         Path | None, tyro.conf.arg(metavar="DIR", help_behavior_hint="(default: runs/<agent>-<preset>-s<seed>)")
     ] = None
@@ -159,6 +165,11 @@ class Train:
     resume: Annotated[bool, tyro.conf.arg(help_behavior_hint="")] = False
     """continue the run in --run-dir from its latest checkpoint (same configuration required; with a
     larger --total-env-steps, finished or not, train it longer)"""
+    fork_from: Annotated[Path | None, tyro.conf.arg(metavar="RUN_DIR", help_behavior_hint="(default: none)")] = None
+    """start a new run in --run-dir from this run's checkpoint: its configuration with the options and
+    --set given here, its networks, optimisers and replay, env steps counted on (docs/cli.md)"""
+    fork_step: Annotated[int | None, tyro.conf.arg(metavar="N", help_behavior_hint="(default: its latest)")] = None
+    """with --fork-from: the checkpoint to start from, in env steps"""
     encoder: Annotated[
         Path | None, tyro.conf.arg(metavar="PATH", help_behavior_hint="(default: the shipped pretrained encoder)")
     ] = None
@@ -219,7 +230,10 @@ class Train:
         from train import presets
 
         with flag_errors(self._flag_names()):
-            cfg = presets.make(self.agent, self.preset, self.seed)
+            if self.fork_from is None:
+                cfg = presets.make(self.agent or "vpm", self.preset or "cpu", self.seed or 0)
+            else:  # the source's configuration, which only the options given here change
+                cfg = self._fork_base()
             typed = {f"train.{field}": getattr(self, name) for name, field in self._FIELDS.items()}
             typed["env.success_tau"] = self.success_tau  # the learner's relabelling radius follows it
             cfg = presets.with_overrides(cfg, {k: v for k, v in typed.items() if v is not None})
@@ -231,6 +245,27 @@ class Train:
             except ValueError as e:
                 raise _set_error(e) from None
         return cfg
+
+    def _fork_base(self):
+        from train import fork
+
+        cfg = fork.source_config(fork.ForkSource(self.fork_from))
+        for flag, mine, theirs in (("--agent", self.agent, cfg.agent), ("--preset", self.preset, cfg.preset)):
+            if mine is not None and mine != theirs:
+                raise ConfigError(
+                    f"{flag} {mine}: the run forked ({self.fork_from}) is {theirs}; a fork keeps its "
+                    f"source's {flag[2:]} (drop {flag})"
+                )
+        if self.seed is not None:
+            cfg = dataclasses.replace(
+                cfg, train=dataclasses.replace(cfg.train, loop=dataclasses.replace(cfg.train.loop, seed=self.seed))
+            )
+        return cfg
+
+    def _default_run_dir(self) -> Path:
+        if self.fork_from is not None:
+            return Path(f"{self.fork_from}-fork")
+        return Path("runs") / f"{self.agent or 'vpm'}-{self.preset or 'cpu'}-s{self.seed or 0}"
 
     def _flag_names(self) -> dict[str, str]:
         names = {field: "--" + name.replace("_", "-") for name, field in self._FIELDS.items()}
@@ -248,16 +283,23 @@ class Train:
     def run(self) -> None:
         from rich.console import Console
 
-        from train import data_parallel, run as run_mod
+        from train import data_parallel, fork, run as run_mod
         from train import presets
         from train.progress import TrainProgress
 
         # Before anything starts JAX's backend: a multi-process run's devices are all its processes'.
         data_parallel.initialize(self.coordinator, self.num_processes, self.process_id)
         console = Console(quiet=not data_parallel.is_primary())  # process 0 speaks for the run
-        run_dir = self.run_dir or Path("runs") / f"{self.agent}-{self.preset}-s{self.seed}"
+        run_dir = self.run_dir or self._default_run_dir()
         if self.checkpoint_every < 1:
             raise ConfigError(f"--checkpoint-every must be >= 1, got {self.checkpoint_every}")
+        if self.fork_step is not None and self.fork_from is None:
+            raise ConfigError("--fork-step N picks the checkpoint of --fork-from RUN_DIR; pass --fork-from too")
+        if self.resume and self.fork_from is not None:
+            raise ConfigError(
+                "--resume continues the run in --run-dir; --fork-from starts a new one: pass one of them "
+                "(an interrupted fork continues with --resume alone)"
+            )
         if self.resume:
             if not run_dir.is_dir():
                 raise ConfigError(
@@ -296,6 +338,14 @@ class Train:
             f"run dir {run_dir}",
             soft_wrap=True,
         )
+        if self.fork_from is not None:
+            source = fork.ForkSource(self.fork_from, self.fork_step)
+            changes = fork.check_fork(source, cfg)
+            console.print(
+                f"  forked from {self.fork_from} at {fork.fork_step(source):,} env steps; changed: "
+                + ("; ".join(changes) if changes else "nothing (a copy trained on with its own random numbers)"),
+                soft_wrap=True,
+            )
         console.print("  the first batch includes JIT compilation (minutes on CPU)")
         try:
             with (
@@ -306,6 +356,7 @@ class Train:
                     cfg,
                     run_dir,
                     resume=self.resume,
+                    fork=self.fork_from and fork.ForkSource(self.fork_from, self.fork_step),
                     checkpoint_every=self.checkpoint_every,
                     on_iteration=bar.update,
                     substep_chunk=self.substep_chunk,

@@ -39,6 +39,7 @@ from train.adapter import EnvAdapter
 from train.loop import Runner, TrainState, make_train
 from train.loop import train as train_loop
 from train.checkpoints import Checkpoints
+from train.fork import ForkSource, check_fork, fork_state, read_record, write_record
 from train.metric_log import MetricLog
 from train.policies import save_policy
 from train.presets import RunConfig, config_dict, load_config
@@ -142,6 +143,7 @@ def run(
     on_iteration: Callable[[dict], None] | None = None,
     substep_chunk: int | None = None,
     stop_on_signal: bool = False,
+    fork: ForkSource | None = None,
 ) -> tuple[dict, TrainState]:
     """Train `cfg` in `run_dir` (with `resume`, from its latest checkpoint; a `cfg` that differs from
     the run's own only by a larger ``train.loop.total_env_steps`` trains it longer, finished or not,
@@ -152,12 +154,17 @@ def run(
     MJX task's scheduler (0: lockstep; None: the default); it changes speed, not episodes, so it is not
     part of the run's configuration. `stop_on_signal`: SIGINT / SIGTERM stop the run after the current
     batch with a checkpoint (`train.interrupt`); the summary then holds "interrupted_at_env_steps" and
-    "signal". One process at a time may run in a directory (`train.run_lock`); resuming a finished run
+    "signal". `fork`: a new run that starts from another run's checkpoint (`train.fork`) with `cfg`'s
+    settings. One process at a time may run in a directory (`train.run_lock`); resuming a finished run
     raises `RunFinished` and changes nothing. In a multi-process run (`train.data_parallel`) every
     process calls this with the same arguments and directory (a shared file system); process 0 takes
     the lock and writes the logs, policies and summary, all write their shards of each checkpoint.
     Returns (summary, final state)."""
     run_dir = Path(run_dir)
+    if fork is not None:
+        if resume:
+            raise ConfigError("--fork-from starts a new run; --resume continues one: pass one of them")
+        check_fork(fork, cfg)
     if resume:
         check_not_finished(run_dir, cfg)
         if not run_dir.is_dir():
@@ -176,6 +183,7 @@ def run(
             on_iteration=on_iteration,
             substep_chunk=substep_chunk,
             stop=stop,
+            fork=fork,
         )
 
 
@@ -211,6 +219,7 @@ def _run_locked(
     on_iteration: Callable[[dict], None] | None,
     substep_chunk: int | None,
     stop: StopOnSignal | None,
+    fork: ForkSource | None = None,
 ) -> tuple[dict, TrainState]:
     primary = data_parallel.is_primary()
     # Every process checks (what process 0 writes here, the config, none of the checks reads); the
@@ -236,6 +245,12 @@ def _run_locked(
         resumed_from = int(state.env_steps)
         if earlier_total is not None and primary:
             _start_longer(run_dir, cfg)
+    if fork is not None:  # the new run's first checkpoint is the source's state: from here on it is a resume
+        state, forked = fork_state(state, cfg, fork)
+        resumed_from = int(state.env_steps)
+        ckpts.save(state, cfg, {"history_rows": 0, "forked_from": forked})
+        if primary:
+            write_record(run_dir, forked)
     log = MetricLog(run_dir, resumed_from, write=primary)
 
     clock = _Clock()
@@ -296,6 +311,7 @@ def _run_locked(
         "first_batch_s": clock.first_batch_s,
         "steady_env_steps_per_s": (loop.env_steps_per_iteration / np.mean(steady)) if steady else None,
         "resumed_from_env_steps": resumed_from,
+        **({"forked_from": forked} if (forked := read_record(run_dir)) is not None else {}),
         **({"trained_longer_from_env_steps": earlier_total} if earlier_total is not None else {}),
         "run_dir": str(run_dir),
     }
