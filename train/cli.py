@@ -330,6 +330,9 @@ class Train:
                 return
         else:
             cfg = self.config()
+            if self.fork_from is not None:  # refused before anything is printed as started
+                source = fork.ForkSource(self.fork_from, self.fork_step)
+                changes = fork.check_fork(source, cfg)
         loop = cfg.train.loop
         console.print(
             f"[bold]mjx-push train[/] {cfg.agent} ({cfg.preset}): {loop.num_envs} envs, "
@@ -339,8 +342,6 @@ class Train:
             soft_wrap=True,
         )
         if self.fork_from is not None:
-            source = fork.ForkSource(self.fork_from, self.fork_step)
-            changes = fork.check_fork(source, cfg)
             console.print(
                 f"  forked from {self.fork_from} at {fork.fork_step(source):,} env steps; changed: "
                 + ("; ".join(changes) if changes else "nothing (a copy trained on with its own random numbers)"),
