@@ -378,6 +378,7 @@ def test_set_overrides_any_field_by_its_config_path(capsys):
     ).config()
     assert cfg.train.sac.bc_weight == 0 and cfg.env.substeps == (10, 600) and cfg.env.controller.gain == 1.0
     assert cfg.train.agent.critic_obs == "actor" and cfg.train.agent.obs_norm  # the rest stays the preset's
+    assert type(cfg.train.sac.bc_weight) is float  # a whole number for a float field is stored as one
     for bad, says in (
         ("train.sac.bcweight=0", "no field 'bcweight'"),
         ("trian.sac.lr=1", "no section 'trian'"),

@@ -38,7 +38,7 @@ def _convert(tp, value, where: str):
     # deep in a config's checks. bool is an int in Python, but never a number of a config.
     if tp in _KINDS and (not isinstance(value, _KINDS[tp][0]) or (tp is not bool and isinstance(value, bool))):
         raise ConfigError(f"{where} must be {_KINDS[tp][1]}, got {value!r}")
-    return value
+    return float(value) if tp is float else value  # `--set x=2` gives 2.0, as the config file will say
 
 
 _KINDS = {
