@@ -24,6 +24,12 @@ CHECKPOINT_VERSION = 1
 ADDED_FIELDS = ("anchor_actor_params",)
 
 
+def saved_steps(directory: Path) -> list[int]:
+    """The env steps of the complete checkpoints in `directory`, ascending, read from the folder names
+    alone (nothing opened; an unfinished write is a temporary folder and does not count)."""
+    return sorted(int(p.name) for p in Path(directory).glob("*") if p.is_dir() and p.name.isdigit())
+
+
 class Checkpoints:
     """Orbax checkpoints of a TrainState, keyed by environment steps, the last `keep` kept."""
 

@@ -247,7 +247,7 @@ class Train:
         return cfg
 
     def _fork_base(self):
-        from train import fork
+        from train import fork, presets
 
         cfg = fork.source_config(fork.ForkSource(self.fork_from))
         for flag, mine, theirs in (("--agent", self.agent, cfg.agent), ("--preset", self.preset, cfg.preset)):
@@ -256,11 +256,7 @@ class Train:
                     f"{flag} {mine}: the run forked ({self.fork_from}) is {theirs}; a fork keeps its "
                     f"source's {flag[2:]} (drop {flag})"
                 )
-        if self.seed is not None:
-            cfg = dataclasses.replace(
-                cfg, train=dataclasses.replace(cfg.train, loop=dataclasses.replace(cfg.train.loop, seed=self.seed))
-            )
-        return cfg
+        return cfg if self.seed is None else presets.with_overrides(cfg, {"train.loop.seed": self.seed})
 
     def _default_run_dir(self) -> Path:
         if self.fork_from is not None:
@@ -330,9 +326,9 @@ class Train:
                 return
         else:
             cfg = self.config()
-            if self.fork_from is not None:  # refused before anything is printed as started
-                source = fork.ForkSource(self.fork_from, self.fork_step)
-                changes = fork.check_fork(source, cfg)
+        source = None if self.fork_from is None else fork.ForkSource(self.fork_from, self.fork_step)
+        if source is not None:  # refused before anything is printed as started
+            step, changes = fork.check_fork(source, cfg)
         loop = cfg.train.loop
         console.print(
             f"[bold]mjx-push train[/] {cfg.agent} ({cfg.preset}): {loop.num_envs} envs, "
@@ -341,9 +337,9 @@ class Train:
             f"run dir {run_dir}",
             soft_wrap=True,
         )
-        if self.fork_from is not None:
+        if source is not None:
             console.print(
-                f"  forked from {self.fork_from} at {fork.fork_step(source):,} env steps; changed: "
+                f"  forked from {self.fork_from} at {step:,} env steps; changed: "
                 + ("; ".join(changes) if changes else "nothing (a copy trained on with its own random numbers)"),
                 soft_wrap=True,
             )
@@ -357,7 +353,7 @@ class Train:
                     cfg,
                     run_dir,
                     resume=self.resume,
-                    fork=self.fork_from and fork.ForkSource(self.fork_from, self.fork_step),
+                    fork=source,
                     checkpoint_every=self.checkpoint_every,
                     on_iteration=bar.update,
                     substep_chunk=self.substep_chunk,

@@ -25,7 +25,7 @@ import jax.numpy as jnp
 
 from mjx_push.errors import ConfigError
 from train import atomic, configio
-from train.checkpoints import Checkpoints
+from train.checkpoints import Checkpoints, saved_steps
 from train.loop import TrainState
 from train.presets import RunConfig, config_dict, load_config
 
@@ -63,7 +63,7 @@ def fork_step(source: ForkSource) -> int:
     """The env steps of the checkpoint to fork, checked to exist (read from the directory names, so
     nothing is opened)."""
     ckpt_dir = Path(source.run_dir) / "checkpoints"
-    steps = sorted(int(p.name) for p in ckpt_dir.glob("*") if p.is_dir() and p.name.isdigit())
+    steps = saved_steps(ckpt_dir)
     if not steps:
         raise ConfigError(f"--fork-from: no checkpoint in {ckpt_dir}")
     step = steps[-1] if source.env_steps is None else source.env_steps
@@ -76,10 +76,12 @@ def fork_step(source: ForkSource) -> int:
     return step
 
 
-def check_fork(source: ForkSource, cfg: RunConfig) -> list[str]:
+def check_fork(source: ForkSource, cfg: RunConfig) -> tuple[int, list[str]]:
     """Everything a fork can check before anything is built or written: its source, checkpoint and
-    settings. Returns the settings it changes."""
-    return fork_changes(source_config(source), cfg, fork_step(source))
+    settings. Returns the checkpoint's env steps and the settings the fork changes."""
+    source_cfg = source_config(source)  # first: "not a run directory" says more than "no checkpoint"
+    step = fork_step(source)
+    return step, fork_changes(source_cfg, cfg, step)
 
 
 def fork_changes(source_cfg: RunConfig, cfg: RunConfig, env_steps: int) -> list[str]:

@@ -33,6 +33,7 @@ import numpy as np
 from train import atomic, configio, presets
 from train.config import AGENT_KINDS
 from train import run as run_mod
+from train.checkpoints import saved_steps
 from train import policies
 from train.evaluate import DISTANCE_METRICS, METRICS, EvalSpec, ExpertPolicy, evaluate, evaluator_for, summarize
 from train.report import read_training, write_report
@@ -58,7 +59,7 @@ def train_or_reuse(cfg: presets.RunConfig, run_dir: Path, log: Callable[[str], N
         log(f"training {run_dir} longer: {cfg.train.loop.total_env_steps:,} env steps in all")
         run_mod.run(cfg, run_dir, resume=True)  # never the restart below: a finished run is not discarded
         return
-    resume = (run_dir / "checkpoints").is_dir() and any(p.name.isdigit() for p in (run_dir / "checkpoints").iterdir())
+    resume = bool(saved_steps(run_dir / "checkpoints"))
     if not resume and run_dir.exists():
         # Killed before its first checkpoint: nothing to resume, and its logs would make `run` refuse
         # the directory as "already holding a run". Start it again from scratch.

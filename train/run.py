@@ -38,7 +38,7 @@ from train.run_lock import RunLock
 from train.adapter import EnvAdapter
 from train.loop import Runner, TrainState, make_train
 from train.loop import train as train_loop
-from train.checkpoints import Checkpoints
+from train.checkpoints import Checkpoints, saved_steps
 from train.fork import ForkSource, check_fork, fork_state, read_record, write_record
 from train.metric_log import MetricLog
 from train.policies import save_policy
@@ -77,7 +77,7 @@ def prepare_dir(run_dir: Path, cfg: RunConfig, resume: bool, write: bool = True)
     A resume whose `cfg` only asks for more env steps trains the run longer (`_start_longer`, once its
     checkpoint has been read): returns the run's earlier total then, else None."""
     run_dir = Path(run_dir)
-    has_ckpt = any(p.is_dir() and p.name.isdigit() for p in (run_dir / "checkpoints").glob("*"))
+    has_ckpt = bool(saved_steps(run_dir / "checkpoints"))
     if resume:
         if not has_ckpt:
             raise ConfigError(f"--resume: no checkpoint in {run_dir / 'checkpoints'}")
@@ -112,8 +112,7 @@ def finished_summary(run_dir: Path, cfg: RunConfig) -> dict | None:
     if not path.is_file():
         return None
     loop = cfg.train.loop
-    steps = [int(p.name) for p in (run_dir / "checkpoints").glob("*") if p.is_dir() and p.name.isdigit()]
-    if max(steps, default=-1) < loop.num_iterations * loop.env_steps_per_iteration:
+    if max(saved_steps(run_dir / "checkpoints"), default=-1) < loop.num_iterations * loop.env_steps_per_iteration:
         return None
     try:
         return json.loads(path.read_text())
