@@ -375,6 +375,98 @@ def test_reproduce_reuses_the_run_and_caches_each_evaluation(tiny_egru_run, eval
     assert json.loads(cache.read_text())["policy_sha256"] != rec["policy_sha256"]
 
 
+def test_reproduce_teacher_free_forks_each_finished_run_and_reports_the_forks(tiny_egru_run, evaluator, tmp_path):
+    """--teacher-free N: the finished budget run is forked at its end and trained N env steps more with
+    the teacher annealed away over the first half; the report in OUT/teacher-free scores the fork, the
+    budget's run is only read, and a second call reuses the fork and its evaluation."""
+    import shutil
+
+    from train import presets
+    from train import reproduce as rep
+    from train.checkpoints import saved_steps
+
+    cfg, d, _, _ = tiny_egru_run
+    out = tmp_path / "repro"
+    base = out / "runs" / "egru-s0"
+    shutil.copytree(d, base)
+    base_files = sorted(p.name for p in base.iterdir())
+
+    def go(**kw):
+        lines: list[str] = []
+        rep.reproduce(
+            "smoke",
+            1,
+            out,
+            episodes=2,
+            agents=("egru",),
+            shapes=("cylinder",),
+            log=lines.append,
+            config_hook=lambda _: cfg,
+            expert=False,
+            teacher_free=6,
+            **kw,
+        )
+        return "\n".join(lines)
+
+    log = go()
+    fork = out / "teacher-free" / "runs" / "egru-s0"
+    assert f"reusing finished run {base}" in log and f"forking {base} at its last checkpoint into {fork}" in log
+    assert presets.load_config(fork / "config.json") == rep.teacher_free_config(cfg, 6)
+    record = json.loads((fork / "forked_from.json").read_text())
+    assert record["env_steps"] == 12 and len(record["changes"]) == 4, record
+    assert saved_steps(fork / "checkpoints")[-1] == 18 and report.read_training(fork)["eval_env_steps"] == [18]
+    assert (fork / "eval-difficult-cylinder-2.json").is_file() and not (
+        base / "eval-difficult-cylinder-2.json"
+    ).exists()
+    assert sorted(p.name for p in base.iterdir()) == base_files and saved_steps(base / "checkpoints")[-1] == 12
+    results = json.loads((out / "teacher-free" / "results.json").read_text())
+    assert results["meta"]["teacher_free"] == 6 and list(results["combined"]) == ["egru"]
+    text = " ".join((out / "teacher-free" / "report.md").read_text().split())  # wrapped lines joined
+    assert "--teacher-free 6" in text and "between 12 and 15 env steps" in text and "| cylinder | eGRU |" in text
+    assert not (out / "report.md").exists()  # the plain comparison's report is not written over
+
+    log = go()
+    assert f"reusing finished run {fork}" in log and "reusing evaluation" in log and "forking" not in log
+    log = go(report_only=True)
+    assert "reusing evaluation" in log
+    shutil.rmtree(fork)
+    with pytest.raises(ValueError, match="no finished run in .*teacher-free"):
+        go(report_only=True)
+
+
+def test_teacher_free_config_anneals_after_the_budget_and_refuses_what_it_cannot_anneal(tmp_path, capsys):
+    from train import configio, presets
+    from train import reproduce as rep
+
+    cfg = rep.budget_config("cpu-long", "egru", 1)
+    tf = rep.teacher_free_config(cfg, 32000)  # docs/learners.md's recipe, from the budget's own end
+    assert sorted(configio.differences(presets.config_dict(cfg), presets.config_dict(tf))) == [
+        "train.demo.anneal_end: None != 80000",
+        "train.demo.anneal_start: None != 64000",
+        "train.loop.total_env_steps: 64000 != 96000",
+        f"train.sac.anchor_weight: 0.0 != {cfg.train.sac.bc_weight}",
+    ]
+    assert tf.train.demo.teacher_scale(80000) == 0 and tf.train.demo.teacher_scale(64000) == 1
+    assert rep.run_dir_of(tmp_path, "vpm", 2, 32000) == tmp_path / "teacher-free" / "runs" / "vpm-s2"
+    line = rep.plan("cpu-long", 1, tmp_path, ("vpm",), teacher_free=32000)[0]
+    assert line == f"mjx-push reproduce --budget cpu-long --out {tmp_path} --teacher-free 32000 --job vpm:0"
+    args = ["reproduce", "--budget", "cpu-long", "--plan", str(tmp_path / "p.txt"), "--teacher-free"]
+    for bad, says in (
+        (["1"], "must be >= 2 env steps"),
+        (
+            ["32000", "--set", "train.sac.bc_weight=0", "train.demo.fraction=0", "train.demo.warmup=false"],
+            "without a teacher",
+        ),
+        (
+            ["32000", "--set", "train.demo.anneal_start=50000", "train.demo.anneal_end=60000"],
+            "leave train.demo.anneal_start",
+        ),
+    ):
+        assert cli_main([*args, *bad]) == 2
+        assert says in capsys.readouterr().err, bad
+    assert not (tmp_path / "p.txt").exists()
+
+
 def test_scored_policy_replays_the_selection_rule_over_the_runs_evaluations(tmp_path):
     """A run trained under the old strict tie rule saved its first of several tied actors as best; the
     table must score the actor the current rule keeps (the final one), and say so when none holds it."""

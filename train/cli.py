@@ -567,6 +567,10 @@ class Reproduce:
     """train every agent for N env steps instead of the budget's; runs of this --out that finished with
     fewer are trained longer from their last checkpoint (exactly as a run of N from the start, except
     for the evaluation at their earlier end)"""
+    teacher_free: Annotated[int | None, tyro.conf.arg(metavar="N", help_behavior_hint="(default: none)")] = None
+    """then fork every finished run at its end and train it N env steps more with the teacher annealed
+    away over the first N/2 (the actor held to its copy at the fork; the last N/2 are its own); the
+    report, in OUT/teacher-free/, scores the forks. The budget's runs are the plain comparison's, reused"""
     set: Annotated[tuple[str, ...], tyro.conf.arg(metavar="PATH=VALUE", help_behavior_hint="(default: none)")] = ()
     """override a field of every agent's run configuration and the expert's (config.json's paths;
     values in JSON), e.g. --set expert.hold_short=true: the comparison under a variant (use its own
@@ -602,11 +606,24 @@ class Reproduce:
             with flag_errors({"loop.total_env_steps": "--total-env-steps"}):
                 rep.budget_config(self.budget, "vpm", 0, self.total_env_steps)  # refused here, not in a job
         overrides = self.overrides()
+        if self.teacher_free is not None:
+            for agent in self.agents:  # refused here, not in a job
+                rep.teacher_free_config(
+                    rep.budget_config(self.budget, agent, 0, self.total_env_steps, overrides=overrides),
+                    self.teacher_free,
+                )
         if sum(x is not None and x is not False for x in (self.plan, self.job, self.report_only or None)) > 1:
             raise ConfigError("--plan, --job and --report-only exclude each other")
         if self.plan is not None:
             lines = rep.plan(
-                self.budget, self.seeds, out, tuple(self.agents), self.episodes, self.total_env_steps, overrides
+                self.budget,
+                self.seeds,
+                out,
+                tuple(self.agents),
+                self.episodes,
+                self.total_env_steps,
+                overrides,
+                self.teacher_free,
             )
             self.plan.parent.mkdir(parents=True, exist_ok=True)
             self.plan.write_text("\n".join(lines) + "\n")
@@ -636,6 +653,7 @@ class Reproduce:
                 log=console.print,
                 total_env_steps=self.total_env_steps,
                 overrides=overrides,
+                teacher_free=self.teacher_free,
             )
             return
         path = rep.reproduce(
@@ -649,6 +667,7 @@ class Reproduce:
             report_only=self.report_only,
             total_env_steps=self.total_env_steps,
             overrides=overrides,
+            teacher_free=self.teacher_free,
         )
         console.print(f"report: {path}")
         console.print((path.parent / "report.md").read_text(), markup=False, soft_wrap=True)  # verbatim Markdown

@@ -273,12 +273,24 @@ is the one evaluated above):
     total_flag = f" --total-env-steps {meta['total_env_steps']}" if meta.get("budget_total_changed") else ""
     budget_name = meta.get("budget", "?") + (f" ({meta['total_env_steps']:,} env steps)" if total_flag else "")
     total_flag += presets.set_flag(meta.get("overrides"))
-    text = f"""# mjx-push reproduction: {budget_name} budget
+    title = f"{budget_name} budget"
+    teacher_text = ""
+    if meta.get("teacher_free"):
+        total_flag += f" --teacher-free {meta['teacher_free']}"
+        title += ", then without the teacher"
+        start, end, total = meta["teacher_free_env_steps"]
+        teacher_text = f"""
+Each agent trained with its teacher to {start:,} env steps, then forked there and trained on to
+{total:,}: the cloning weight and the expert's share of environments fell from 1 to 0 between
+{start:,} and {end:,} env steps (the actor held to its copy at the fork), and the last {total - end:,}
+were the agent's own. The table scores each fork's kept actor.
+"""
+    text = f"""# mjx-push reproduction: {title}
 
 Agents trained with `mjx-push reproduce --budget {meta.get("budget")} --seeds {seeds}{total_flag}`, each evaluated on
 {meta.get("episodes")} deterministic episodes per shape in the **{meta.get("setting")}** setting
 (the same seeds for every agent). Values are mean ± {err}.
-
+{teacher_text}
 {table(results)}
 {missing_text}
 ![metrics per shape and agent](metrics.png)

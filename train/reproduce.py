@@ -12,6 +12,12 @@ Across machines: `plan` lists one command per job (an agent and seed trained and
 expert's row) and the report's command, for any scheduler to run wherever `OUT` is shared;
 `reproduce(..., report_only=True)` builds the report from the runs that have finished (evaluating any
 not yet evaluated) and lists the others as missing.
+
+Without the teacher (`teacher_free`): each finished run is forked at its end (train/fork.py) into
+`<out>/teacher-free/runs/<agent>-s<seed>` and trained further with the expert annealed away, and the
+report in `<out>/teacher-free/` scores those forks. The budget's runs are the same ones a plain
+reproduction of that `out` uses, so a comparison already run gains its teacher-free half without
+retraining.
 """
 
 from __future__ import annotations
@@ -34,6 +40,7 @@ from train import atomic, configio, presets
 from train.config import AGENT_KINDS
 from train import run as run_mod
 from train.checkpoints import saved_steps
+from train.fork import ForkSource
 from train import policies
 from train.evaluate import DISTANCE_METRICS, METRICS, EvalSpec, ExpertPolicy, evaluate, evaluator_for, summarize
 from train.report import read_training, write_report
@@ -46,9 +53,14 @@ AGENTS = AGENT_KINDS
 SCHEDULE = ("ugru", "vpm", "stacked", "egru")
 PAPER_SHAPES = ("cylinder", "square", "rectangular")
 EVAL_EPISODES = {"smoke": 8, "cpu": 100, "cpu-long": 100, "reference": 100, "paper": 100}
+TEACHER_FREE = "teacher-free"  # <out>/teacher-free/: the forks without the teacher and their report
 
 
-def train_or_reuse(cfg: presets.RunConfig, run_dir: Path, log: Callable[[str], None]) -> None:
+def train_or_reuse(
+    cfg: presets.RunConfig, run_dir: Path, log: Callable[[str], None], fork: ForkSource | None = None
+) -> None:
+    """Reuse the finished run in `run_dir`, train it longer, resume it, or start it (from `fork`'s
+    checkpoint when given)."""
     if (run_dir / "summary.json").is_file() and (run_dir / "best_policy.msgpack").is_file():
         saved = presets.load_config(run_dir / "config.json")
         if saved == cfg:
@@ -65,8 +77,15 @@ def train_or_reuse(cfg: presets.RunConfig, run_dir: Path, log: Callable[[str], N
         # the directory as "already holding a run". Start it again from scratch.
         log(f"{run_dir} was stopped before its first checkpoint: starting it again")
         shutil.rmtree(run_dir)
-    log(("resuming " if resume else "training ") + str(run_dir))
-    run_mod.run(cfg, run_dir, resume=resume)
+    if resume:
+        log(f"resuming {run_dir}")
+        run_mod.run(cfg, run_dir, resume=True)
+    elif fork is not None:
+        log(f"forking {fork.run_dir} at its last checkpoint into {run_dir}")
+        run_mod.run(cfg, run_dir, resume=False, fork=fork)
+    else:
+        log(f"training {run_dir}")
+        run_mod.run(cfg, run_dir, resume=False)
 
 
 def scored_policy(run_dir: Path) -> tuple[str, int]:
@@ -198,8 +217,53 @@ def budget_config(
     return config_hook(cfg) if config_hook else cfg
 
 
-def run_dir_of(out: Path, agent: str, seed: int) -> Path:
-    return Path(out) / "runs" / f"{agent}-s{seed}"
+def run_dir_of(out: Path, agent: str, seed: int, teacher_free: int | None = None) -> Path:
+    """Where the run of `agent` and `seed` lives; with `teacher_free`, its fork without the teacher."""
+    return Path(out) / (TEACHER_FREE if teacher_free else "") / "runs" / f"{agent}-s{seed}"
+
+
+def teacher_free_config(cfg: presets.RunConfig, steps: int) -> presets.RunConfig:
+    """`cfg` (a run that keeps its teacher to its end) trained `steps` env steps further, the teacher
+    annealed away over the first half: the cloning weight and the expert's share of environments fall
+    from 1 to 0, and the actor is held to its copy at the run's end with the weight the cloning term
+    gives up (`train.sac.anchor_weight` = the cloning weight), so the last half is the agent's own. At the `cpu-long` budget with 32,000 steps this is docs/learners.md's recipe."""
+    if steps < 2:
+        raise ConfigError(f"--teacher-free must be >= 2 env steps (the anneal takes the first half), got {steps}")
+    if not cfg.train.demo.enabled or cfg.train.sac.bc_weight == 0:
+        raise ConfigError("--teacher-free: this configuration trains without a teacher; there is none to anneal away")
+    if cfg.train.demo.anneal_start is not None:
+        raise ConfigError(
+            "--teacher-free anneals the teacher itself, after the budget's end: leave train.demo.anneal_start "
+            f"and anneal_end unset (got {cfg.train.demo.anneal_start} and {cfg.train.demo.anneal_end})"
+        )
+    end = cfg.train.loop.total_env_steps
+    return presets.with_overrides(
+        cfg,
+        {
+            "train.loop.total_env_steps": end + steps,
+            "train.demo.anneal_start": end,
+            "train.demo.anneal_end": end + steps // 2,
+            "train.sac.anchor_weight": cfg.train.sac.bc_weight,
+        },
+    )
+
+
+def job_config(
+    budget: str,
+    agent: str,
+    seed: int,
+    out: Path,
+    total_env_steps: int | None = None,
+    config_hook: Callable[[presets.RunConfig], presets.RunConfig] | None = None,
+    overrides: dict | None = None,
+    teacher_free: int | None = None,
+) -> tuple[presets.RunConfig, Path]:
+    """The configuration and directory of the run the report scores for `agent` and `seed`: the
+    budget's run, or with `teacher_free` its fork without the teacher."""
+    cfg = budget_config(budget, agent, seed, total_env_steps, config_hook, overrides)
+    if teacher_free:
+        cfg = teacher_free_config(cfg, teacher_free)
+    return cfg, run_dir_of(out, agent, seed, teacher_free)
 
 
 def is_finished(run_dir: Path, total_env_steps: int | None = None) -> bool:
@@ -226,17 +290,24 @@ def agent_job(
     train: bool = True,
     total_env_steps: int | None = None,
     overrides: dict | None = None,
+    teacher_free: int | None = None,
 ) -> dict[str, dict]:
     """Train (or reuse / resume) one agent and seed, then evaluate it per shape: {shape: summary}.
     ``train`` False evaluates a finished run only. ``total_env_steps`` replaces the budget's (a finished
-    run of fewer steps is trained longer from its checkpoint); ``overrides`` as in `budget_config`.
-    Module-level and picklable, so `--jobs` can run it in a worker process."""
-    cfg = budget_config(budget, agent, seed, total_env_steps, config_hook, overrides)
-    run_dir = run_dir_of(out, agent, seed)
-    if train:
-        train_or_reuse(cfg, run_dir, log)
-    elif not is_finished(run_dir, cfg.train.loop.total_env_steps):
-        raise ConfigError(f"{run_dir} has not finished training ({cfg.train.loop.total_env_steps:,} env steps)")
+    run of fewer steps is trained longer from its checkpoint); ``overrides`` as in `budget_config`;
+    ``teacher_free`` forks the finished run and trains that many env steps more without the teacher
+    (`teacher_free_config`), and the fork is evaluated. Module-level and picklable, so `--jobs` can run
+    it in a worker process."""
+    cfg, run_dir = job_config(budget, agent, seed, out, total_env_steps, config_hook, overrides)
+    stages = [(cfg, run_dir, None)]
+    if teacher_free:
+        fork_cfg, fork_dir = job_config(budget, agent, seed, out, total_env_steps, config_hook, overrides, teacher_free)
+        stages.append((fork_cfg, fork_dir, ForkSource(run_dir)))
+    for cfg, run_dir, fork in stages:
+        if train:
+            train_or_reuse(cfg, run_dir, log, fork)
+        elif not is_finished(run_dir, cfg.train.loop.total_env_steps):
+            raise ConfigError(f"{run_dir} has not finished training ({cfg.train.loop.total_env_steps:,} env steps)")
     summaries = {}
     for shape in shapes:
         spec = EvalSpec(setting=setting, shape=shape, episodes=episodes, batch=min(episodes, 20))
@@ -288,12 +359,14 @@ def plan(
     episodes: int | None = None,
     total_env_steps: int | None = None,
     overrides: dict | None = None,
+    teacher_free: int | None = None,
 ) -> list[str]:
     """One shell command per job (each agent and seed: train, then evaluate; the expert's row), then the
     command that builds the report from them. The jobs are independent: run them anywhere that shares
     `out`, in any order, and the report last (or at any time, for the runs finished so far)."""
     ep = f" --episodes {episodes}" if episodes else ""
     ep += f" --total-env-steps {total_env_steps}" if total_env_steps else ""
+    ep += f" --teacher-free {teacher_free}" if teacher_free else ""
     ep += presets.set_flag(overrides)
     base = f"mjx-push reproduce --budget {budget} --out {out}{ep}"
     jobs = [f"{base} --job {agent}:{seed}" for seed in range(seeds) for agent in dict.fromkeys(agents)]
@@ -318,9 +391,11 @@ def reproduce(
     report_only: bool = False,
     total_env_steps: int | None = None,
     overrides: dict | None = None,
+    teacher_free: int | None = None,
 ) -> Path:
     """Train + evaluate every agent for `seeds` seeds (`jobs` of them at a time, in worker processes
-    when > 1), and the scripted expert as a baseline row (``expert``); returns the report's path.
+    when > 1), and the scripted expert as a baseline row (``expert``); returns the report's path
+    (in `out`, or with ``teacher_free`` in `out`/teacher-free, scoring the forks without the teacher).
     ``report_only``: train nothing; the report holds the runs that have finished (evaluated here if not
     yet) and names the others. `overrides` ({config path: value}) change every agent's configuration
     and the expert's alike (`--set`). `config_hook` lets tests shrink the runs (it must be picklable
@@ -335,21 +410,18 @@ def reproduce(
     t0 = time.perf_counter()
     agents = tuple(dict.fromkeys(agents))  # scheduling order as given, once each
     items = [(agent, seed) for seed in range(seeds) for agent in agents]
+    scored = {
+        (a, s): job_config(budget, a, s, out, total_env_steps, config_hook, overrides, teacher_free) for a, s in items
+    }
+    report_dir = out / TEACHER_FREE if teacher_free else out
     missing = []
     if report_only:
-        missing = [
-            (a, s)
-            for a, s in items
-            if not is_finished(
-                run_dir_of(out, a, s),
-                budget_config(budget, a, s, total_env_steps, config_hook, overrides).train.loop.total_env_steps,
-            )
-        ]
+        missing = [i for i in items if not is_finished(scored[i][1], scored[i][0].train.loop.total_env_steps)]
         items = [i for i in items if i not in missing]
-        for a, s in missing:
-            log(f"{run_dir_of(out, a, s)} has not finished: left out of the report")
+        for i in missing:
+            log(f"{scored[i][1]} has not finished: left out of the report")
         if not items:
-            raise ConfigError(f"no finished run in {out / 'runs'} for agents {agents} and {seeds} seed(s)")
+            raise ConfigError(f"no finished run in {report_dir / 'runs'} for agents {agents} and {seeds} seed(s)")
     calls = []
     for agent, seed in items:
         # In a worker, `log` (often a rich console) stays behind: lines go to stdout, prefixed.
@@ -363,6 +435,7 @@ def reproduce(
                     "train": not report_only,
                     "total_env_steps": total_env_steps,
                     "overrides": overrides,
+                    "teacher_free": teacher_free,
                 },
             )
         )
@@ -381,6 +454,7 @@ def reproduce(
             results[agent][shape].append(per_shape[shape])
     if expert:
         results["expert"] = {s: [v] for s, v in summaries[-1].items()}
+    fork = scored[items[0]][0].train  # with teacher_free, every fork's schedule (one budget)
     meta = {
         "budget": budget,
         "total_env_steps": budget_config(
@@ -388,6 +462,11 @@ def reproduce(
         ).train.loop.total_env_steps,
         "budget_total_changed": total_env_steps is not None,
         "overrides": overrides or {},
+        "teacher_free": teacher_free,
+        # (anneal start, anneal end, total) of the forks: the report's account of the schedule
+        "teacher_free_env_steps": [fork.demo.anneal_start, fork.demo.anneal_end, fork.loop.total_env_steps]
+        if teacher_free
+        else None,
         "seeds": seeds,
         "jobs": jobs,
         "episodes": episodes,
@@ -399,7 +478,7 @@ def reproduce(
         "machine": f"{platform.machine()}, {__import__('os').cpu_count()} CPU cores, "
         f"jax backend {__import__('jax').default_backend()}",
     }
-    runs = {a: [run_dir_of(out, a, s) for a2, s in items if a2 == a] for a in results if a in AGENTS}
-    path = write_report(out, results, meta, runs)
-    (out / "reproduce.json").write_text(json.dumps(meta, indent=2) + "\n")
+    runs = {a: [scored[a2, s][1] for a2, s in items if a2 == a] for a in results if a in AGENTS}
+    path = write_report(report_dir, results, meta, runs)
+    (report_dir / "reproduce.json").write_text(json.dumps(meta, indent=2) + "\n")
     return path
