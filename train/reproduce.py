@@ -303,11 +303,13 @@ def agent_job(
     if teacher_free:
         fork_cfg, fork_dir = job_config(budget, agent, seed, out, total_env_steps, config_hook, overrides, teacher_free)
         stages.append((fork_cfg, fork_dir, ForkSource(run_dir)))
-    for cfg, run_dir, fork in stages:
+    for stage_cfg, stage_dir, fork in stages:
+        total = stage_cfg.train.loop.total_env_steps
         if train:
-            train_or_reuse(cfg, run_dir, log, fork)
-        elif not is_finished(run_dir, cfg.train.loop.total_env_steps):
-            raise ConfigError(f"{run_dir} has not finished training ({cfg.train.loop.total_env_steps:,} env steps)")
+            train_or_reuse(stage_cfg, stage_dir, log, fork)
+        elif not is_finished(stage_dir, total):
+            raise ConfigError(f"{stage_dir} has not finished training ({total:,} env steps)")
+    cfg, run_dir, _ = stages[-1]  # the run the table scores: the fork, when there is one
     summaries = {}
     for shape in shapes:
         spec = EvalSpec(setting=setting, shape=shape, episodes=episodes, batch=min(episodes, 20))
