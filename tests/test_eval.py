@@ -289,6 +289,27 @@ def test_eval_cli_writes_json_and_a_video(tiny_egru_run, tmp_path):
 
 
 # --- reproduce: reuse, cached evaluations, worker processes -------------------------------------------
+def _reproduce_tiny(out, cfg, agents=("egru",), **kw) -> str:
+    """`reproduce` with every agent at the tiny run's configuration `cfg`: cylinders only, 2 episodes, no
+    expert row (tests/test_expert.py has it). Returns its log."""
+    from train import reproduce as rep
+
+    lines: list[str] = []
+    rep.reproduce(
+        "smoke",
+        1,
+        out,
+        episodes=2,
+        agents=agents,
+        shapes=("cylinder",),
+        log=lines.append,
+        config_hook=lambda _: cfg,
+        expert=False,
+        **kw,
+    )
+    return "\n".join(lines)
+
+
 def test_reproduce_reuses_the_run_and_caches_each_evaluation(tiny_egru_run, evaluator, tmp_path):
     import shutil
 
@@ -302,20 +323,8 @@ def test_reproduce_reuses_the_run_and_caches_each_evaluation(tiny_egru_run, eval
     shutil.copytree(d, run_dir)
 
     def go():
-        lines: list[str] = []
-        rep.reproduce(
-            "smoke",
-            1,
-            out,
-            episodes=2,
-            agents=("egru",),
-            shapes=("cylinder",),
-            log=lines.append,
-            config_hook=lambda _: cfg,
-            expert=False,
-        )  # the expert's row: tests/test_expert.py
-        summary = json.loads((out / "results.json").read_text())["combined"]["egru"]["cylinder"]
-        return "\n".join(lines), summary
+        log = _reproduce_tiny(out, cfg)
+        return log, json.loads((out / "results.json").read_text())["combined"]["egru"]["cylinder"]
 
     log, first = go()
     assert "reusing finished run" in log and "reusing evaluation" not in log
@@ -345,19 +354,7 @@ def test_reproduce_reuses_the_run_and_caches_each_evaluation(tiny_egru_run, eval
     assert "reusing evaluation" not in log and json.loads(cache.read_text())["summary"] == rec["summary"]
 
     # The report from whatever has finished: the eGRU run (its evaluation reused), not the absent VPM run.
-    lines: list[str] = []
-    rep.reproduce(
-        "smoke",
-        1,
-        out,
-        episodes=2,
-        agents=("egru", "vpm"),
-        shapes=("cylinder",),
-        log=lines.append,
-        config_hook=lambda _: cfg,
-        expert=False,
-        report_only=True,
-    )
+    lines = _reproduce_tiny(out, cfg, agents=("egru", "vpm"), report_only=True).splitlines()
     assert "reusing evaluation" in "\n".join(lines)
     assert f"{out / 'runs' / 'vpm-s0'} has not finished: left out of the report" in lines
     results = json.loads((out / "results.json").read_text())
@@ -392,21 +389,7 @@ def test_reproduce_teacher_free_forks_each_finished_run_and_reports_the_forks(ti
     base_files = sorted(p.name for p in base.iterdir())
 
     def go(**kw):
-        lines: list[str] = []
-        rep.reproduce(
-            "smoke",
-            1,
-            out,
-            episodes=2,
-            agents=("egru",),
-            shapes=("cylinder",),
-            log=lines.append,
-            config_hook=lambda _: cfg,
-            expert=False,
-            teacher_free=6,
-            **kw,
-        )
-        return "\n".join(lines)
+        return _reproduce_tiny(out, cfg, teacher_free=6, **kw)
 
     log = go()
     fork = out / "teacher-free" / "runs" / "egru-s0"
