@@ -217,16 +217,22 @@ def budget_config(
     return config_hook(cfg) if config_hook else cfg
 
 
+def report_dir_of(out: Path, teacher_free: int | None = None) -> Path:
+    """Where the report goes: `out`, or with `teacher_free` `out`/teacher-free (its forks' report)."""
+    return Path(out) / TEACHER_FREE if teacher_free else Path(out)
+
+
 def run_dir_of(out: Path, agent: str, seed: int, teacher_free: int | None = None) -> Path:
     """Where the run of `agent` and `seed` lives; with `teacher_free`, its fork without the teacher."""
-    return Path(out) / (TEACHER_FREE if teacher_free else "") / "runs" / f"{agent}-s{seed}"
+    return report_dir_of(out, teacher_free) / "runs" / f"{agent}-s{seed}"
 
 
 def teacher_free_config(cfg: presets.RunConfig, steps: int) -> presets.RunConfig:
     """`cfg` (a run that keeps its teacher to its end) trained `steps` env steps further, the teacher
     annealed away over the first half: the cloning weight and the expert's share of environments fall
     from 1 to 0, and the actor is held to its copy at the run's end with the weight the cloning term
-    gives up (`train.sac.anchor_weight` = the cloning weight), so the last half is the agent's own. At the `cpu-long` budget with 32,000 steps this is docs/learners.md's recipe."""
+    gives up (`train.sac.anchor_weight` = the cloning weight), so the last half is the agent's own.
+    At the `cpu-long` budget with 32,000 steps this is docs/learners.md's recipe."""
     if steps < 2:
         raise ConfigError(f"--teacher-free must be >= 2 env steps (the anneal takes the first half), got {steps}")
     if not cfg.train.demo.enabled or cfg.train.sac.bc_weight == 0:
@@ -298,11 +304,12 @@ def agent_job(
     ``teacher_free`` forks the finished run and trains that many env steps more without the teacher
     (`teacher_free_config`), and the fork is evaluated. Module-level and picklable, so `--jobs` can run
     it in a worker process."""
-    cfg, run_dir = job_config(budget, agent, seed, out, total_env_steps, config_hook, overrides)
+    cfg = budget_config(budget, agent, seed, total_env_steps, config_hook, overrides)
+    run_dir = run_dir_of(out, agent, seed)
     stages = [(cfg, run_dir, None)]
     if teacher_free:
-        fork_cfg, fork_dir = job_config(budget, agent, seed, out, total_env_steps, config_hook, overrides, teacher_free)
-        stages.append((fork_cfg, fork_dir, ForkSource(run_dir)))
+        fork_dir = run_dir_of(out, agent, seed, teacher_free)
+        stages.append((teacher_free_config(cfg, teacher_free), fork_dir, ForkSource(run_dir)))
     for stage_cfg, stage_dir, fork in stages:
         total = stage_cfg.train.loop.total_env_steps
         if train:
@@ -415,7 +422,7 @@ def reproduce(
     scored = {
         (a, s): job_config(budget, a, s, out, total_env_steps, config_hook, overrides, teacher_free) for a, s in items
     }
-    report_dir = out / TEACHER_FREE if teacher_free else out
+    report_dir = report_dir_of(out, teacher_free)
     missing = []
     if report_only:
         missing = [i for i in items if not is_finished(scored[i][1], scored[i][0].train.loop.total_env_steps)]
