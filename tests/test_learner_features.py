@@ -277,24 +277,82 @@ def test_annealed_teacher_leaves_the_last_batches_to_the_agent():
     assert [int(runner.expert_envs(s).sum()) for s in (160, 320, 640, 800, 960, 1200)] == [4, 4, 2, 1, 0, 0]
 
 
-def test_the_anchor_is_the_actor_of_anneal_start_frozen_after_it():
+def test_the_anchor_lets_go_and_the_schedule_reads_at_chosen_env_steps():
+    demo = DemoConfig(warmup=True, fraction=0.5, anneal_start=320, anneal_end=480, anchor_release=640)
+    steps = (0, 320, 400, 480, 560, 640, 800)
+    assert [demo.teacher_scale(s) for s in steps] == [1.0, 1.0, 0.5, 0.0, 0.0, 0.0, 0.0]
+    assert [demo.anchor_scale(s) for s in steps] == [0.0, 0.0, 0.5, 1.0, 0.5, 0.0, 0.0]
+    traced = [float(demo.anchor_scale(jnp.asarray(s))) for s in steps]
+    assert traced == [demo.anchor_scale(s) for s in steps]  # the jitted loop reads the same schedule
+    held = dataclasses.replace(demo, anchor_release=None)
+    assert [held.anchor_scale(s) for s in steps] == [0.0, 0.0, 0.5, 1.0, 1.0, 1.0, 1.0]
+    assert DemoConfig(warmup=True).anchor_scale(800) == 0.0
+    assert [demo.teacher_gone(s) for s in (479, 480)] == [False, True]
+
+
+@pytest.mark.parametrize(
+    "fields, message",
+    [
+        (dict(anchor_release=900), "demo.anchor_release must be None unless the teacher is annealed"),
+        (dict(keep_after_anneal=False), "demo.keep_after_anneal must be True unless the teacher is annealed"),
+        (dict(anneal_start=320, anneal_end=480, anchor_release=480), "demo.anchor_release must be None or an int"),
+        (dict(anneal_start=320, anneal_end=480, keep_after_anneal=0), "demo.keep_after_anneal must be a bool"),
+    ],
+)
+def test_bad_release_settings_are_refused_by_name(fields, message):
+    with pytest.raises(ValueError, match=message):
+        DemoConfig(warmup=True, fraction=0.5, **fields)
+
+
+def test_drop_demos_marks_only_the_demonstrations_invalid():
+    rng = np.random.default_rng(0)
+    buf = replay.init(ReplayConfig(capacity_transitions=6 * T), T)
+    eps = {**_episodes(rng, 3), "demo": jnp.array([True, False, True])}
+    buf = replay.add(buf, eps)
+    kept = replay.drop_demos(buf, jnp.asarray(False))
+    assert kept.data["valid"][:3].tolist() == [True, True, True]
+    gone = replay.drop_demos(buf, jnp.asarray(True))
+    assert gone.data["valid"][:3].tolist() == [False, True, False]
+    assert int(replay.num_demo_episodes(gone)) == 0 and int(replay.num_valid_episodes(gone)) == 1
+
+
+def test_the_anchor_holds_then_lets_go_and_learning_outlives_the_demonstrations():
+    """The anchor is the actor of the batch ending at anneal_start, frozen after it, its weight let go
+    on the schedule. Cloning from demonstrations only (label_all off) gates updates on a demonstration
+    in replay while the teacher counts; once it has gone and its episodes have left replay
+    (keep_after_anneal off), the agent learns on from its own episodes."""
     cfg = dataclasses.replace(
-        _toy_cfg(loop_over=dict(total_env_steps=640)),
+        _toy_cfg(loop_over=dict(total_env_steps=800)),
         sac=dataclasses.replace(_toy_cfg().sac, anchor_weight=2.0),
-        demo=DemoConfig(warmup=True, fraction=0.5, noise=0.1, anneal_start=320, anneal_end=480),
+        demo=DemoConfig(
+            warmup=True,
+            fraction=0.5,
+            noise=0.1,
+            anneal_start=320,
+            anneal_end=480,
+            anchor_release=640,
+            keep_after_anneal=False,
+        ),
     )
     runner = Runner(make_train(cfg, make_toy(success_tau=TAU)))
-    state, history = runner.init(jax.random.PRNGKey(0)), []
-    actors = {}
+    state, by_step, actors = runner.init(jax.random.PRNGKey(0)), {}, {}
     while int(state.env_steps) < cfg.loop.total_env_steps:
         state, metrics = runner.iteration(state)
-        history.append(metrics)
+        by_step[int(state.env_steps)] = {k: np.asarray(v).item() for k, v in metrics.items()}
         actors[int(state.env_steps)] = [np.array(x) for x in jax.tree.leaves(state.sac.actor_params)]
     for a, b in zip(jax.tree.leaves(state.anchor_actor_params), actors[320]):
         np.testing.assert_array_equal(a, b)  # the batch ending at anneal_start, kept to the end
     assert not all(np.array_equal(a, b) for a, b in zip(actors[400], actors[320]))
-    drifts = [float(h["sac/anchor_drift"]) for h in history if int(h["env_steps"]) > 320]
+    drifts = [by_step[s]["sac/anchor_drift"] for s in (400, 480, 560)]
     assert all(np.isfinite(drifts)) and max(drifts) > 0.0  # the actor moved and the term saw it
+    assert by_step[400]["replay/demo_episodes"] > 0
+    after = [by_step[s] for s in (480, 560, 640, 720, 800)]
+    assert all(h["replay/demo_episodes"] == 0 for h in after)
+    assert all(h["learning"] for h in after)
+    updates = [h["updates"] for h in after]
+    assert all(b - a == cfg.loop.updates_per_iteration for a, b in zip(updates, updates[1:]))
+    assert [h["demo/anchor_scale"] for h in after] == [1.0, 0.5, 0.0, 0.0, 0.0]
+    assert all(np.isfinite(h["sac/actor_loss"]) for h in after)
 
 
 def test_every_feature_together_learns_the_toy_task():

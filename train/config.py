@@ -254,6 +254,14 @@ class DemoConfig:
     # training on its own. None: no annealing (the teacher stays to the end).
     anneal_start: int | None = None
     anneal_end: int | None = None
+    # The anchor (SACConfig.anchor_weight) let go in turn: its weight, full at anneal_end, falls
+    # linearly to 0 at anchor_release (env steps), so what follows is the agent's own critic alone.
+    # None: the anchor holds to the end.
+    anchor_release: int | None = None
+    # False: the expert's episodes leave replay at anneal_end (marked invalid, never sampled again), so
+    # the critics learn from the agent's own episodes alone once the teacher is gone. True: they stay
+    # until the ring buffer overwrites them.
+    keep_after_anneal: bool = True
 
     def __post_init__(self):
         _check(isinstance(self.warmup, bool), "demo.warmup", "a bool", self.warmup)
@@ -277,6 +285,29 @@ class DemoConfig:
                 f"greater than demo.anneal_start ({self.anneal_start})",
                 self.anneal_end,
             )
+        _check(isinstance(self.keep_after_anneal, bool), "demo.keep_after_anneal", "a bool", self.keep_after_anneal)
+        if self.anneal_start is None:
+            _check(
+                self.anchor_release is None,
+                "demo.anchor_release",
+                "None unless the teacher is annealed",
+                self.anchor_release,
+            )
+            _check(
+                self.keep_after_anneal,
+                "demo.keep_after_anneal",
+                "True unless the teacher is annealed",
+                self.keep_after_anneal,
+            )
+        elif self.anchor_release is not None:
+            _check(
+                isinstance(self.anchor_release, int)
+                and not isinstance(self.anchor_release, bool)
+                and self.anchor_release > self.anneal_end,
+                "demo.anchor_release",
+                f"None or an int greater than demo.anneal_end ({self.anneal_end}) (env steps)",
+                self.anchor_release,
+            )
         _check(isinstance(self.label_all, bool), "demo.label_all", "a bool", self.label_all)
         _fraction("demo.fraction", self.fraction)
         _check(math.isfinite(self.noise) and self.noise >= 0, "demo.noise", "a finite number >= 0", self.noise)
@@ -294,6 +325,25 @@ class DemoConfig:
         if isinstance(env_steps, (int, float)):
             return min(max((self.anneal_end - env_steps) / span, 0.0), 1.0)
         return jnp.clip((self.anneal_end - env_steps) / span, 0.0, 1.0).astype(jnp.float32)
+
+    def anchor_scale(self, env_steps):
+        """The factor (0 -> 1 -> 0) on the anchor's weight after ``env_steps`` environment steps: it takes
+        over the cloning weight as the teacher goes (1 - teacher_scale), then falls from anneal_end to
+        0 at ``anchor_release`` (stays 1 without a release). 0 without annealing."""
+        if self.anneal_start is None:
+            return 0.0 if isinstance(env_steps, (int, float)) else jnp.zeros((), jnp.float32)
+        taken = 1.0 - self.teacher_scale(env_steps)
+        if self.anchor_release is None:
+            return taken
+        span = float(self.anchor_release - self.anneal_end)
+        if isinstance(env_steps, (int, float)):
+            return min(taken, min(max((self.anchor_release - env_steps) / span, 0.0), 1.0))
+        held = jnp.clip((self.anchor_release - env_steps) / span, 0.0, 1.0).astype(jnp.float32)
+        return jnp.minimum(taken, held)
+
+    def teacher_gone(self, env_steps) -> bool:
+        """Whether the teacher has left for good after ``env_steps`` env steps (never without annealing)."""
+        return self.anneal_end is not None and env_steps >= self.anneal_end
 
 
 @dataclasses.dataclass(frozen=True)

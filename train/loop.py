@@ -181,7 +181,7 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
     bc = sac_cfg.bc_weight > 0
     anchored = sac_cfg.anchor_weight > 0
 
-    def run_updates(sac_state, buffer, key, tau, bc_scale, anchor):
+    def run_updates(sac_state, buffer, key, tau, bc_scale, anchor, anchor_scale):
         def body(s, k):
             k_sample, k_demo, k_update = jax.random.split(on_device(k), 3)
             batch = replay.sample(buffer, k_sample, batch_dev, success_tau=tau)
@@ -190,7 +190,7 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
                 if bc
                 else None
             )
-            return update(s, batch, k_update, demo, bc_scale, anchor if anchored else None)
+            return update(s, batch, k_update, demo, bc_scale, anchor if anchored else None, anchor_scale)
 
         sac_state, metrics = jax.lax.scan(body, sac_state, jax.random.split(key, loop.updates_per_iteration))
         metrics = jax.tree.map(jnp.mean, metrics)
@@ -221,21 +221,25 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
         """Store a batch of episodes and run this batch's SAC updates (none during warm-up)."""
         buffer = replay.add(ts.buffer, episodes)
         env_steps = ts.env_steps + N * T
-        # Every device must be able to fill its shard of the batch (and of the cloning batch).
+        # The teacher's annealing factor on the cloning weight, at this batch's env steps.
+        bc_scale = demo_cfg.teacher_scale(env_steps)
+        if not demo_cfg.keep_after_anneal:  # the expert's episodes leave with the teacher
+            buffer = replay.drop_demos(buffer, env_steps >= demo_cfg.anneal_end)
+        # Every device must be able to fill its shard of the batch (and of the cloning batch while the
+        # cloning term counts and draws from demonstrations only: once the teacher has gone, learning
+        # goes on after its last episode has left replay).
         learn = (env_steps >= loop.warmup_env_steps) & everywhere(replay.num_valid_transitions(buffer) >= batch_dev)
-        if bc:
-            learn = learn & everywhere(replay.num_demo_episodes(buffer) > 0)
+        if bc and not demo_cfg.label_all:
+            learn = learn & (everywhere(replay.num_demo_episodes(buffer) > 0) | (bc_scale <= 0))
         norm_stats, sac_state = ts.norm_stats, ts.sac
         if agent.obs_norm:  # the statistics of every device's episodes, so they stay the same everywhere
             seen = episodes if axis is None else jax.lax.all_gather(episodes, axis, tiled=True)
             norm_stats = normalizer.update_stats(norm_stats, seen, agent.critic_obs)
             sac_state = with_norm(sac_state, norm_stats)
         tau = config.replay.reward_tau(jnp.maximum(env_steps - loop.warmup_env_steps, 0).astype(jnp.float32))
-        # The teacher's annealing factor on the cloning weight, at this batch's env steps.
-        bc_scale = demo_cfg.teacher_scale(env_steps)
-
         anchor = ts.anchor_actor_params
-        args = (sac_state, buffer, k_update, tau, bc_scale, anchor)
+        anchor_scale = demo_cfg.anchor_scale(env_steps)
+        args = (sac_state, buffer, k_update, tau, bc_scale, anchor, anchor_scale)
         update_metrics_shape = jax.eval_shape(run_updates, *args)[1]
         skip_metrics = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), update_metrics_shape)
         if loop.updates_per_iteration > 0:
@@ -258,6 +262,7 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
             "replay/demo_episodes": total(replay.num_demo_episodes(buffer)),
             "replay/reward_tau": jnp.asarray(tau, jnp.float32),
             "demo/teacher_scale": bc_scale,
+            "demo/anchor_scale": jnp.asarray(anchor_scale, jnp.float32),
         }
         return new_ts, metrics
 

@@ -122,6 +122,13 @@ def sparse_reward(obj_xy: jax.Array, goal_xy: jax.Array, success_tau: float) -> 
     return -(dist >= success_tau).astype(jnp.float32)
 
 
+def drop_demos(buffer: ReplayBuffer, when) -> ReplayBuffer:
+    """The buffer with its demonstration episodes marked invalid (never sampled again) where ``when``
+    (a traced bool) holds; unchanged otherwise. Their slots are reused by later episodes as usual."""
+    gone = buffer.data["demo"] & jnp.asarray(when)
+    return buffer.replace(data={**buffer.data, "valid": buffer.data["valid"] & ~gone})
+
+
 def num_demo_episodes(buffer: ReplayBuffer) -> jax.Array:
     return jnp.sum((buffer.data["valid"] & buffer.data["demo"]).astype(jnp.int32))
 

@@ -105,17 +105,20 @@ def bc_loss_value(action, expert_action, keep):
 def make_actor_loss(
     nets: Networks, bc_weight: float = 0.0, q_filter: bool = True, objective: str = "sac", anchor_weight: float = 0.0
 ) -> Callable:
-    """``actor_loss(actor_params, critic_params, alpha, batch, key, demo=None, bc_scale=1.0, anchor=None)``:
-    SAC's actor loss plus ``bc_weight * bc_scale`` times the cloning term (``objective`` "sac"), or the
-    cloning term alone ("bc"). ``bc_scale`` is the teacher's annealing factor (DemoConfig). With
-    ``anchor`` (frozen actor params) and ``anchor_weight`` > 0, plus ``anchor_weight * (1 - bc_scale)``
-    times the squared distance to the anchor's deterministic action on the batch's states."""
+    """``actor_loss(actor_params, critic_params, alpha, batch, key, demo=None, bc_scale=1.0, anchor=None,
+    anchor_scale=None)``: SAC's actor loss plus ``bc_weight * bc_scale`` times the cloning term
+    (``objective`` "sac"), or the cloning term alone ("bc"). ``bc_scale`` is the teacher's annealing
+    factor (DemoConfig.teacher_scale). With ``anchor`` (frozen actor params) and ``anchor_weight`` > 0,
+    plus ``anchor_weight * anchor_scale`` times the squared distance to the anchor's deterministic action
+    on the batch's states (``anchor_scale`` defaults to ``1 - bc_scale``; DemoConfig.anchor_scale)."""
     if objective not in ("sac", "bc"):
         raise ConfigError(f"actor objective must be 'sac' or 'bc', got {objective!r}")
     if objective == "bc" and (bc_weight <= 0 or q_filter):
         raise ConfigError("the cloning-only actor needs bc_weight > 0 and no Q-filter")
 
-    def actor_loss(actor_params, critic_params, alpha, batch, key, demo=None, bc_scale=1.0, anchor=None):
+    def actor_loss(
+        actor_params, critic_params, alpha, batch, key, demo=None, bc_scale=1.0, anchor=None, anchor_scale=None
+    ):
         B = batch["t"].shape[0]
         noise = jax.random.normal(key, (B, 1, nets.action_dim))
         action, logp = nets.policy(actor_params, batch, _at(batch, 0), noise)
@@ -144,8 +147,9 @@ def make_actor_loss(
             mine = nets.deterministic_action(actor_params, batch, _at(batch, 0))[:, 0]
             held = jax.lax.stop_gradient(nets.deterministic_action(anchor, batch, _at(batch, 0))[:, 0])
             drift = bc_loss_value(mine, held, jnp.ones(mine.shape[:1]))
-            loss = loss + anchor_weight * (1.0 - bc_scale) * drift
-            aux.update(anchor_drift=drift)
+            held_by = 1.0 - bc_scale if anchor_scale is None else anchor_scale
+            loss = loss + anchor_weight * held_by * drift
+            aux.update(anchor_drift=drift, anchor_scale=jnp.asarray(held_by, jnp.float32))
         return loss, aux
 
     return actor_loss
@@ -220,11 +224,18 @@ def make_update(
         return optax.apply_updates(params, updates), opt_state
 
     def update(
-        state: SACState, batch: dict, key: jax.Array, demo: dict | None = None, bc_scale=1.0, anchor=None
+        state: SACState,
+        batch: dict,
+        key: jax.Array,
+        demo: dict | None = None,
+        bc_scale=1.0,
+        anchor=None,
+        anchor_scale=None,
     ) -> tuple[SACState, dict]:
         """One update; ``demo`` is a batch of demonstration steps for the behaviour-cloning term, whose
         weight ``bc_scale`` multiplies (the teacher's annealing); ``anchor`` the frozen actor params the
-        actor is held to as the teacher goes (SACConfig.anchor_weight)."""
+        actor is held to as the teacher goes (SACConfig.anchor_weight), with ``anchor_scale`` on its
+        weight (default ``1 - bc_scale``)."""
         k_next, k_pi = jax.random.split(key)
         alpha = jnp.exp(state.log_alpha)  # this update's coefficient, fixed before the alpha step
 
@@ -234,7 +245,7 @@ def make_update(
         critic_params, critic_opt_state = step(state.critic_params, state.critic_opt_state, mean(c_grads))
 
         (a_loss, a_aux), a_grads = actor_loss(
-            state.actor_params, critic_params, alpha, batch, k_pi, demo, bc_scale, anchor
+            state.actor_params, critic_params, alpha, batch, k_pi, demo, bc_scale, anchor, anchor_scale
         )
         logp = a_aux["logp"]
         al_loss, al_grad = alpha_grad(state.log_alpha, logp, target_entropy)
