@@ -139,11 +139,38 @@ def test_a_checkpoint_written_before_a_state_field_existed_resumes_exactly(full_
         120, args=ocp.args.Composite(state=ocp.args.StandardSave(old), meta=ocp.args.JsonSave(meta)), force=True
     )
     ckpts.manager.wait_until_finished()
-    _, resumed = run_mod.run(cfg, d, adapter=toy, resume=True)
+    with pytest.warns(UserWarning, match="written before TrainState had anchor_actor_params"):
+        _, resumed = run_mod.run(cfg, d, adapter=toy, resume=True)
     for (path, a), b in zip(
         jax.tree_util.tree_leaves_with_path(jax.device_get(resumed)), jax.tree_util.tree_leaves(full_state)
     ):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b), err_msg=jax.tree_util.keystr(path))
+
+
+def test_a_checkpoint_whose_added_field_does_not_match_is_refused_not_defaulted(full_run, tmp_path, toy):
+    """The fallback for fields added since is for checkpoints that lack them: one that holds the field
+    with other shapes is refused by name, not restored with the field silently taken from the run."""
+    import orbax.checkpoint as ocp
+
+    cfg, _, _, _ = full_run
+    d = tmp_path / "odd"
+    run_mod.run(cfg, d, adapter=toy, checkpoint_every=1, stop_after=3)
+    ckpts = checkpoints.Checkpoints(d / "checkpoints")
+    state = latest_state(d, cfg, toy)
+    meta = ckpts.manager.restore(120, args=ocp.args.Composite(meta=ocp.args.JsonRestore()))["meta"]
+    odd = state.replace(
+        anchor_actor_params=jax.tree.map(lambda x: np.zeros(x.shape + (2,), x.dtype), state.anchor_actor_params)
+    )
+    import shutil
+
+    shutil.rmtree(d / "checkpoints" / "120")
+    ckpts = checkpoints.Checkpoints(d / "checkpoints")
+    ckpts.manager.save(
+        120, args=ocp.args.Composite(state=ocp.args.StandardSave(odd), meta=ocp.args.JsonSave(meta)), force=True
+    )
+    ckpts.manager.wait_until_finished()
+    with pytest.raises(ValueError, match="does not match this run's state"):
+        run_mod.run(cfg, d, adapter=toy, resume=True)
 
 
 def test_run_writes_logs_checkpoints_and_policies(full_run):

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import shutil
+import warnings
 from pathlib import Path
 
 import jax
@@ -95,8 +96,17 @@ class Checkpoints:
                 "state"
             ]
         except Exception as e:
-            state = self._restore_without_added_fields(step, template, abstract)
+            # Only a checkpoint that lacks a field added since may fall back; any other mismatch (a
+            # field present but of another shape, a garbled array) is an error, never a silent default.
+            missing = self._missing_added_fields(step)
+            state = self._restore_without(missing, step, template, abstract) if missing else None
             if state is not None:
+                warnings.warn(
+                    f"checkpoint {self.directory}/{step} was written before TrainState had "
+                    f"{', '.join(missing)}; restored the rest and took {'it' if len(missing) == 1 else 'them'} "
+                    "from the run's initial state",
+                    stacklevel=2,
+                )
                 return state, meta
             raise ConfigError(
                 f"checkpoint {self.directory}/{step} is corrupt or does not match this run's "
@@ -104,10 +114,23 @@ class Checkpoints:
             ) from None
         return state, meta
 
-    def _restore_without_added_fields(self, step: int, template: TrainState, abstract: TrainState) -> TrainState | None:
-        """The checkpoint at `step` read as written before `ADDED_FIELDS` existed, those fields from
-        `template`; None when it is not such a checkpoint either."""
-        older = {f.name: getattr(abstract, f.name) for f in dataclasses.fields(template) if f.name not in ADDED_FIELDS}
+    def _missing_added_fields(self, step: int) -> tuple[str, ...]:
+        """Which of `ADDED_FIELDS` the checkpoint at `step` does not hold, read from its tree metadata
+        (nothing restored); () when the metadata cannot be read."""
+        try:
+            tree = self.manager.item_metadata(step)["state"].tree
+        except Exception:
+            return ()
+        if not isinstance(tree, dict):
+            return ()
+        return tuple(name for name in ADDED_FIELDS if name not in tree)
+
+    def _restore_without(
+        self, missing: tuple[str, ...], step: int, template: TrainState, abstract: TrainState
+    ) -> TrainState | None:
+        """The checkpoint at `step` read without the `missing` fields, those from `template`; None when
+        the rest does not match either."""
+        older = {f.name: getattr(abstract, f.name) for f in dataclasses.fields(template) if f.name not in missing}
         try:
             got = self.manager.restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore(older)))["state"]
         except Exception:
