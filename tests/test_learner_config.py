@@ -160,3 +160,33 @@ def test_the_task_facts_are_set_once_on_the_environment():
             presets.with_overrides(base, {copy: 7})
     same = presets.with_overrides(base, {"train.replay.success_tau": 0.02, "env.success_tau": 0.02})
     assert same.train.replay.success_tau == same.env.success_tau == 0.02  # naming both, equal, is fine
+
+
+def test_the_teacher_free_preset_is_cpu_long_then_the_teacher_annealed_away():
+    """The comparison's recipe in one run: cpu-long's settings for its 64,000 env steps, then the
+    cloning weight, the expert's share and the anchor on their schedule, by configuration alone."""
+    from train import configio, presets
+    from train.loop import spread_envs
+
+    for agent in ("vpm", "egru"):
+        recipe, long = presets.make(agent, "teacher-free"), presets.make(agent, "cpu-long")
+        diff = configio.differences(presets.config_dict(long), presets.config_dict(recipe))
+        assert sorted(d.split(":")[0] for d in diff) == [
+            "preset",
+            "train.demo.anneal_end",
+            "train.demo.anneal_start",
+            "train.loop.total_env_steps",
+            "train.sac.anchor_weight",
+        ]
+    demo, sac, loop = recipe.train.demo, recipe.train.sac, recipe.train.loop
+    steps = (32_000, 64_000, 72_000, 80_000, 96_000, 128_000)
+    cloning = [sac.bc_weight * demo.teacher_scale(s) for s in steps]
+    experts = [
+        int(spread_envs(round(demo.fraction * loop.num_envs * demo.teacher_scale(s)), (16, 16)).sum()) for s in steps
+    ]
+    anchor = [sac.anchor_weight * demo.anchor_scale(s) for s in steps]
+    assert cloning == [2.0, 2.0, 1.0, 0.0, 0.0, 0.0]
+    assert experts == [8, 8, 4, 0, 0, 0]
+    assert anchor[:4] == [0.0, 0.0, 1.0, 2.0]
+    assert anchor[4:] == [2.0, 2.0]  # the anchor holds to the end
+    assert loop.total_env_steps == 128_000 and loop.eval_seed != 1_000_003

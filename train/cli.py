@@ -143,7 +143,8 @@ class Train:
     """Train a pushing agent (SAC + HER) on the MJX scene: logs, checkpoints, best policy in --run-dir.
 
     Presets: cpu (the default: learns to push in under 10 minutes on 2 CPU cores: 6 of 10 objects end
-    within 1 cm), cpu-long (25-30 minutes, for 1 cm), smoke (minutes, proves the pipeline), reference (the reference code's one
+    within 1 cm), cpu-long (25-30 minutes, for 1 cm), teacher-free (cpu-long, then the teacher annealed
+    away and as long again on its own: the comparison's recipe), smoke (minutes, proves the pipeline), reference (the reference code's one
     call of its training script: 29,000 env steps with its action box and learner), paper (millions of
     env steps, sized for one GPU). Any option left unset keeps the preset's value. Ctrl-C (or
     SIGTERM) stops after the current batch with a checkpoint; --resume continues it. --fork-from starts
@@ -155,7 +156,7 @@ class Train:
     """vpm (the cheapest to train on a CPU), stacked, ugru, egru (the paper's proposal)"""
     preset: Annotated[
         Preset | None,
-        tyro.conf.arg(metavar="{smoke,cpu,cpu-long,reference,paper}", help_behavior_hint="(default: cpu)"),
+        tyro.conf.arg(metavar="{smoke,cpu,cpu-long,teacher-free,reference,paper}", help_behavior_hint="(default: cpu)"),
     ] = None
     seed: Annotated[int | None, tyro.conf.arg(metavar="INT", help_behavior_hint="(default: 0)")] = None
     run_dir: Annotated[
@@ -424,7 +425,7 @@ class Eval(EvalOptions):
     """success radius in metres to score at (the correction counters use it too)"""
     preset: Annotated[
         Preset | None,
-        tyro.conf.arg(metavar="{cpu,cpu-long,smoke,reference,paper}", help_behavior_hint="(default: cpu)"),
+        tyro.conf.arg(metavar="{cpu,cpu-long,teacher-free,smoke,reference,paper}", help_behavior_hint="(default: cpu)"),
     ] = None
     """POLICY expert only: the preset whose action box the expert acts in (reference: the paper's)"""
     out: Annotated[

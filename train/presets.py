@@ -8,6 +8,11 @@ the encoder, with the presets of `mjx-push train --preset`.
   docs/results.md).
 * ``cpu-long``: 64,000 env steps, 25-30 minutes alone on 2 CPU cores, for 1 cm (eGRU: 64-80 % within
   1 cm by seed).
+* ``teacher-free``: the comparison's recipe in one run, 128,000 env steps: ``cpu-long``'s 64,000 with
+  the teacher, then the teacher annealed away by 80,000 (cloning weight and expert share to 0, the
+  actor held to its copy of 64,000 by the anchor), then the agent's own to the end. Whether the anchor
+  is let go too (``demo.anchor_release``) and whether the expert's episodes leave replay with the
+  teacher (``demo.keep_after_anneal``) are chosen on selection episodes (docs/learners.md).
 * ``reference``: the paper's reference code, one call of its training script: its action box and
   learner (no normalisation, symmetric critics, no demonstrations), 29,000 environment steps,
   10,000 random-action steps, one update per environment step, batch 256. That script resumed and
@@ -39,7 +44,7 @@ from train import configio
 from train.config import AGENT_KINDS, AgentConfig, DemoConfig, LoopConfig, ReplayConfig, SACConfig, TrainConfig
 from mjx_push.errors import ConfigError
 
-Preset = Literal["smoke", "cpu", "cpu-long", "reference", "paper"]  # defined here once
+Preset = Literal["smoke", "cpu", "cpu-long", "teacher-free", "reference", "paper"]  # defined here once
 PRESETS: tuple[str, ...] = get_args(Preset)
 
 
@@ -139,6 +144,13 @@ _PRESETS = {
     # within 1 cm on the difficult case (seeds 0, 1; docs/learners.md). Runs of the shortest hold
     # (the first comparison's) are `--set expert.hold_short=true`.
     "cpu-long": {**_CPU, "loop": {**_CPU["loop"], "total_env_steps": 64_000, "eval_every_env_steps": 16_000}},
+    # cpu-long's cloning, then the teacher annealed away and the agent alone for as long again.
+    "teacher-free": {
+        **_CPU,
+        "loop": {**_CPU["loop"], "total_env_steps": 128_000, "eval_every_env_steps": 16_000},
+        "sac": {**_CPU["sac"], "anchor_weight": _SAC_FEATURES["bc_weight"]},
+        "demo": dataclasses.replace(_DEMO, anneal_start=64_000, anneal_end=80_000),
+    },
     "reference": dict(
         loop=dict(
             num_envs=10,

@@ -52,7 +52,7 @@ AGENTS = AGENT_KINDS
 # them from the compilation cache instead of compiling them beside it.
 SCHEDULE = ("ugru", "vpm", "stacked", "egru")
 PAPER_SHAPES = ("cylinder", "square", "rectangular")
-EVAL_EPISODES = {"smoke": 8, "cpu": 100, "cpu-long": 100, "reference": 100, "paper": 100}
+EVAL_EPISODES = {"smoke": 8, "cpu": 100, "cpu-long": 100, "teacher-free": 100, "reference": 100, "paper": 100}
 TEACHER_FREE = "teacher-free"  # <out>/teacher-free/: the forks without the teacher and their report
 
 
