@@ -9,7 +9,7 @@ import pytest
 import scipy.stats
 
 from train import seed_stats
-from train.seed_stats import aggregate, check_table, per_task_mean, probability_of_improvement
+from train.seed_stats import aggregate, check_table, mean_difference, per_task_mean, probability_of_improvement
 
 REPS = 500  # enough for stable percentiles in these checks, and fast
 
@@ -92,6 +92,43 @@ def test_probability_of_improvement_by_hand():
     # Runs may differ: x=[1, 2, 3] against y=[2] -> (0 + 1/2 + 1) / 3.
     uneven = probability_of_improvement(np.array([[1.0], [2.0], [3.0]]), np.array([[2.0]]), reps=REPS)
     assert uneven["aggregate"] == pytest.approx(0.5)
+
+
+def test_mean_difference_is_the_difference_of_column_means_with_independent_resamples():
+    x, y = _table(6), _table(4, seed=1)  # runs may differ: the agents' seeds are not paired
+    diff, low, high = mean_difference(x, y, reps=REPS)
+    np.testing.assert_allclose(diff, x.mean(axis=0) - y.mean(axis=0))
+    assert np.all(low < diff) and np.all(diff < high)
+    # Every run of x above every run of y: the whole interval above 0; swapped, below.
+    above = y.max() + 0.1 + _table(5, seed=2)
+    assert np.all(mean_difference(above, y, reps=REPS)[1] > 0)
+    assert np.all(mean_difference(y, above, reps=REPS)[2] < 0)
+    # Identical runs within each agent: nothing to resample, the interval is the point.
+    same_x, same_y = np.tile([0.2, 0.5, 0.9], (5, 1)), np.tile([0.1, 0.5, 1.0], (3, 1))
+    diff, low, high = mean_difference(same_x, same_y, reps=REPS)
+    np.testing.assert_array_equal(low, diff)
+    np.testing.assert_array_equal(high, diff)
+    # Resampled independently per agent: the interval is wider than resampling x alone.
+    _, x_low, x_high = per_task_mean(x, reps=REPS)
+    diff, low, high = mean_difference(x, y, reps=REPS)
+    assert np.all(high - low > x_high - x_low)
+    first, again = mean_difference(x, y, reps=REPS, seed=7), mean_difference(x, y, reps=REPS, seed=7)
+    for a, b in zip(first, again):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_mean_difference_refuses_bad_input_by_name():
+    good = _table(4)
+    with pytest.raises(ValueError, match="y.*non-finite"):
+        mean_difference(good, np.where(good > 0.5, np.nan, good))
+    with pytest.raises(ValueError, match="x.*at least one run"):
+        mean_difference(good[:0], good)
+    with pytest.raises(ValueError, match="same number of tasks"):
+        mean_difference(good, good[:, :2])
+    with pytest.raises(ValueError, match="reps"):
+        mean_difference(good, good, reps=0)
+    with pytest.raises(ValueError, match="confidence"):
+        mean_difference(good, good, confidence=1.0)
 
 
 def test_resampling_never_mixes_tasks():
