@@ -15,6 +15,7 @@ import tyro
 
 from train import cli as train_cli
 from train.eval_options import EvalOptions
+from train.provenance import source_commit
 from mjx_push.errors import ConfigError
 
 VIDEO_FPS = 5  # one frame per environment step
@@ -78,27 +79,6 @@ class Export:
             f"format {FORMAT} version {FORMAT_VERSION}, from {stem}; scores {meta['scores']}"
         )
         return meta
-
-
-def source_commit() -> str | None:
-    """The git commit of the checkout mjx-push runs from (with "+dirty" for uncommitted changes), or
-    None outside a git checkout: provenance for exported policies."""
-    import subprocess
-
-    root = Path(__file__).resolve().parent.parent
-    try:
-        head = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10)
-        if head.returncode != 0:
-            return None
-        dirty = subprocess.run(
-            ["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
-            capture_output=True,
-            text=True,
-            timeout=10,
-        ).stdout.strip()
-    except (OSError, subprocess.TimeoutExpired):
-        return None
-    return head.stdout.strip() + ("+dirty" if dirty else "")
 
 
 @dataclasses.dataclass(kw_only=True)

@@ -71,6 +71,7 @@ def make_folder(
         "episodes_per_shape": EPISODES,
         "setting": "difficult",
         "actor": "final_policy",
+        "preset": "teacher-free",
         "env_steps": 128000,
         "bootstrap": dataclasses.asdict(BOOT),
     }
@@ -222,6 +223,14 @@ BAD_DATA = {
     "bootstrap confidence": (
         lambda f: _edit(f / "protocol.json", lambda d: d["bootstrap"].update(confidence=95)),
         ["protocol.json", "'bootstrap.confidence'"],
+    ),
+    "actor not a policy": (
+        lambda f: _edit(f / "protocol.json", lambda d: d.update(actor="best")),
+        ["protocol.json", "'actor'", "final_policy"],
+    ),
+    "preset missing": (
+        lambda f: _edit(f / "protocol.json", lambda d: d.pop("preset")),
+        ["protocol.json", "'preset' missing"],
     ),
     "expert without a metric": (
         lambda f: _edit(f / "expert.json", lambda d: d["shapes"]["cylinder"]["summary"].pop("reward")),

@@ -48,6 +48,9 @@ from train import atomic, seed_stats
 METRICS = ("success", "reward", "overshoot", "distance")
 OPTIONAL_METRICS = ("start_distance", "final_distance")
 
+# The policies a run leaves (train/run.py): the last actor, or the best by in-run evaluations (whose
+# episodes are never the test's).
+ACTORS = ("final_policy", "best_policy")
 STATUSES = ("finished", "failed", "training")  # what a run file may say
 MISSING = "missing"  # a run of the protocol with no file yet
 
@@ -105,9 +108,10 @@ class Protocol:
     test_seed: int
     episodes_per_shape: int
     setting: str
-    actor: str
+    actor: str  # one of ACTORS: the policy each run is scored with, declared before the runs
     env_steps: int
     bootstrap: Bootstrap
+    preset: str  # the `mjx-push train --preset` every run trains with
 
 
 Scores = Mapping[str, Mapping[str, float]]
@@ -212,7 +216,8 @@ def _names(data: Mapping[str, Any], key: str, path: Path) -> tuple[str, ...]:
     return tuple(names)
 
 
-def _load_protocol(folder: Path) -> Protocol:
+def load_protocol(folder: Path) -> Protocol:
+    """`folder`/protocol.json, checked field by field (a DataError naming the field otherwise)."""
     path = folder / "protocol.json"
     data = _read_json(path)
     seeds = _take(data, "seeds", path, "list")
@@ -231,7 +236,11 @@ def _load_protocol(folder: Path) -> Protocol:
             raise DataError(f"{path}: field '{name}': expected a positive integer, got {value!r}")
     if not 0.0 < confidence < 1.0:
         raise DataError(f"{path}: field 'bootstrap.confidence': expected a level in (0, 1), got {confidence!r}")
+    actor = _take(data, "actor", path, "str")
+    if actor not in ACTORS:
+        raise DataError(f"{path}: field 'actor': expected one of {ACTORS}, got {actor!r}")
     return Protocol(
+        preset=_take(data, "preset", path, "str"),
         version=_take(data, "version", path, "str"),
         agents=_names(data, "agents", path),
         seeds=tuple(seeds),
@@ -239,7 +248,7 @@ def _load_protocol(folder: Path) -> Protocol:
         test_seed=_take(data, "test_seed", path, "int"),
         episodes_per_shape=positive["episodes_per_shape"],
         setting=_take(data, "setting", path, "str"),
-        actor=_take(data, "actor", path, "str"),
+        actor=actor,
         env_steps=positive["env_steps"],
         bootstrap=Bootstrap(
             reps=reps, confidence=float(confidence), seed=_take(boot, "seed", path, "int", "bootstrap")
@@ -342,7 +351,7 @@ def load(folder: str | Path) -> Results:
     folder = Path(folder)
     if not folder.is_dir():
         raise DataError(f"{folder}: not a data folder (expected protocol.json, runs/ and expert.json)")
-    protocol = _load_protocol(folder)
+    protocol = load_protocol(folder)
     files = _run_files(folder, protocol)
     runs = tuple(
         _load_run(files[(agent, seed)], agent, seed, protocol)

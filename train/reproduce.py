@@ -112,12 +112,18 @@ def policy_fingerprint(path: Path) -> str:
     return hashlib.sha256(Path(path).with_suffix(".msgpack").read_bytes()).hexdigest()
 
 
-def evaluate_run(cfg: presets.RunConfig, run_dir: Path, spec: EvalSpec, log: Callable[[str], None]) -> dict:
-    """The summary of `spec` for the run's best policy (`scored_policy`), cached in the run dir as JSON
-    (with the policy's fingerprint and the spec), so an interrupted reproduction never repeats a
-    finished evaluation."""
+def evaluate_run(
+    cfg: presets.RunConfig, run_dir: Path, spec: EvalSpec, log: Callable[[str], None], policy: str | None = None
+) -> dict:
+    """The summary of `spec` for the run's `policy` (default: the one the selection rule picks,
+    `scored_policy`), cached in the run dir as JSON (with the policy's fingerprint and the spec), so an
+    interrupted reproduction never repeats a finished evaluation."""
     path = run_dir / f"eval-{spec.setting}-{spec.shape}-{spec.episodes}.json"
-    name, step = scored_policy(run_dir)
+    if policy is None:
+        name, step = scored_policy(run_dir)
+    else:
+        scores = json.loads((run_dir / f"{policy}.json").read_text())["scores"]
+        name, step = policy, scores.get("env_steps", scores.get("best_env_steps"))
     fingerprint = policy_fingerprint(run_dir / name)
     spec_record = dataclasses.asdict(spec)
     if path.is_file():
