@@ -116,6 +116,9 @@ class LinearNets:
     def policy(self, params, episode, idx, noise):
         return self.deterministic_action(params, episode, idx), jnp.zeros(idx.shape)
 
+    def policy_with_mode(self, params, episode, idx, noise):
+        return (*self.policy(params, episode, idx, noise), self.deterministic_action(params, episode, idx))
+
     def q(self, params, episode, idx, action):
         v = -jnp.sum((action - episode["target"][:, None]) ** 2, -1)
         return jnp.stack([v, v])
@@ -149,11 +152,34 @@ def test_the_anchor_takes_the_cloning_weight_as_the_teacher_goes():
     drift = 0.25 + 1.0  # |(0.5, 0) - (0, 1)|^2
     for scale in (1.0, 0.25, 0.0):
         (loss, aux), grads = loss_fn(params, None, 0.0, batch, key, None, scale, anchor)
-        np.testing.assert_allclose(aux["anchor_drift"], drift)
+        # While the anchor weighs nothing its pass is skipped and its drift reads 0.
+        np.testing.assert_allclose(aux["anchor_drift"], drift if scale < 1.0 else 0.0)
         np.testing.assert_allclose(loss - plain, 2.0 * (1.0 - scale) * drift, rtol=1e-6)
     # At scale 0 the whole weight holds the actor: the gradient points away from the anchor (Q's own
     # gradient at target 0 is 2 * a = (1, 0); the anchor's 2 * 2 * (a - anchor) = (2, -4)).
     np.testing.assert_allclose(grads["a"], [1.0 + 2.0, -4.0], rtol=1e-6)
+
+
+def test_the_anchor_lets_go_on_its_own_scale_and_a_gone_teacher_costs_no_pass():
+    """anchor_scale, when given, weighs the anchor instead of 1 - bc_scale; with bc_scale 0 the cloning
+    term adds nothing, to the loss or the gradient, and its pass is skipped (its metrics read 0)."""
+    batch = {"t": jnp.zeros(2, jnp.int32), "target": jnp.zeros((2, 2))}
+    demo = {"t": jnp.zeros(2, jnp.int32), "action": jnp.ones((2, 2)), "target": jnp.zeros((2, 2))}
+    params, anchor = {"a": jnp.array([0.5, 0.0])}, {"a": jnp.array([0.0, 1.0])}
+    key = jax.random.PRNGKey(0)
+    both = jax.value_and_grad(make_actor_loss(LinearNets(), 2.0, False, anchor_weight=2.0), has_aux=True)
+    plain = jax.value_and_grad(make_actor_loss(LinearNets()), has_aux=True)
+    (base, _), base_grads = plain(params, None, 0.0, batch, key)
+    drift = 0.25 + 1.0
+    for anchor_scale in (1.0, 0.5, 0.0):
+        (loss, aux), grads = both(params, None, 0.0, batch, key, demo, 0.0, anchor, anchor_scale)
+        np.testing.assert_allclose(loss - base, 2.0 * anchor_scale * drift, rtol=1e-6)
+        assert float(aux["bc_loss"]) == 0.0 and float(aux["bc_kept"]) == 0.0
+        np.testing.assert_allclose(aux["anchor_scale"], anchor_scale)
+    np.testing.assert_allclose(grads["a"], base_grads["a"], rtol=1e-6)  # released: SAC's gradient alone
+    (loss, aux), _ = both(params, None, 0.0, batch, key, demo, 1.0, anchor, 0.0)
+    np.testing.assert_allclose(aux["bc_loss"], 0.25 + 1.0)  # |(0.5, 0) - (1, 1)|^2
+    np.testing.assert_allclose(loss - base, 2.0 * 1.25, rtol=1e-6)  # the teacher still counts in full
 
 
 def test_target_clip_bounds_the_td_target():

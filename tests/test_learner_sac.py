@@ -41,6 +41,9 @@ class StubNets:
     def deterministic_action(self, p, episode, idx):
         return self.policy(p, episode, idx, None)[0]
 
+    def policy_with_mode(self, p, episode, idx, noise):
+        return (*self.policy(p, episode, idx, noise), self.deterministic_action(p, episode, idx))
+
     def q(self, p, episode, idx, action):
         return p["w"][:, None, None] * jnp.sum(action, -1)[None] + p["c"][:, None, None] * idx[None]
 

@@ -342,6 +342,13 @@ class Networks:
         mean, log_std = self.actor.apply(actor_params, episode["ee_xy"], episode["z_obj"], episode["z_goal"], idx)
         return squash(mean, log_std, noise)
 
+    def policy_with_mode(self, actor_params, episode, idx, noise) -> tuple[jax.Array, jax.Array, jax.Array]:
+        """``policy``'s actions and log-probs, and the deterministic action tanh(mean) [B, K, A] of the
+        same forward pass (the actor loss needs both: a second pass through a GRU costs as much)."""
+        mean, log_std = self.actor.apply(actor_params, episode["ee_xy"], episode["z_obj"], episode["z_goal"], idx)
+        action, logp = squash(mean, log_std, noise)
+        return action, logp, jnp.tanh(mean)
+
     def q(self, critic_params, episode, idx, action) -> jax.Array:
         """Twin Q values [2, B, K]."""
         return self.critic.apply(critic_params, episode, idx, action)

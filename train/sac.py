@@ -121,7 +121,7 @@ def make_actor_loss(
     ):
         B = batch["t"].shape[0]
         noise = jax.random.normal(key, (B, 1, nets.action_dim))
-        action, logp = nets.policy(actor_params, batch, _at(batch, 0), noise)
+        action, logp, mode = nets.policy_with_mode(actor_params, batch, _at(batch, 0), noise)
         logp = logp[:, 0]
         aux = {"logp": logp}
         if objective == "bc":
@@ -130,26 +130,36 @@ def make_actor_loss(
             q_pi = nets.q(critic_params, batch, _at(batch, 0), action)[..., 0]
             loss = actor_loss_value(logp, q_pi, alpha)
         if demo is not None and bc_weight > 0:
-            pi = nets.deterministic_action(actor_params, demo, _at(demo, 0))[:, 0]
-            expert = demo.get("expert_action", demo["action"])  # the noise-free label when stored
-            if q_filter:  # clone only where the critics prefer the expert's action to the actor's
-                q_e = jnp.min(nets.q(critic_params, demo, _at(demo, 0), expert[:, None]), axis=0)[:, 0]
-                q_a = jnp.min(nets.q(critic_params, demo, _at(demo, 0), jax.lax.stop_gradient(pi)[:, None]), axis=0)[
-                    :, 0
-                ]
-                keep = jax.lax.stop_gradient((q_e > q_a).astype(jnp.float32))
-            else:
-                keep = jnp.ones(pi.shape[:1])
-            bc = bc_loss_value(pi, expert, keep)
+
+            def cloning():
+                pi = nets.deterministic_action(actor_params, demo, _at(demo, 0))[:, 0]
+                expert = demo.get("expert_action", demo["action"])  # the noise-free label when stored
+                if q_filter:  # clone only where the critics prefer the expert's action to the actor's
+                    q_e = jnp.min(nets.q(critic_params, demo, _at(demo, 0), expert[:, None]), axis=0)[:, 0]
+                    held = jax.lax.stop_gradient(pi)[:, None]
+                    q_a = jnp.min(nets.q(critic_params, demo, _at(demo, 0), held), axis=0)[:, 0]
+                    keep = jax.lax.stop_gradient((q_e > q_a).astype(jnp.float32))
+                else:
+                    keep = jnp.ones(pi.shape[:1])
+                return bc_loss_value(pi, expert, keep), jnp.mean(keep)
+
+            # Once the teacher has gone its term weighs nothing: its forward and backward passes are
+            # skipped (its metrics then read 0).
+            bc, kept = jax.lax.cond(jnp.asarray(bc_scale) > 0, cloning, lambda: (jnp.zeros(()), jnp.zeros(())))
             loss = loss + bc_weight * bc_scale * bc
-            aux.update(bc_loss=bc, bc_kept=jnp.mean(keep), bc_scale=jnp.asarray(bc_scale, jnp.float32))
+            aux.update(bc_loss=bc, bc_kept=kept, bc_scale=jnp.asarray(bc_scale, jnp.float32))
         if anchor is not None and anchor_weight > 0:
-            mine = nets.deterministic_action(actor_params, batch, _at(batch, 0))[:, 0]
-            held = jax.lax.stop_gradient(nets.deterministic_action(anchor, batch, _at(batch, 0))[:, 0])
-            drift = bc_loss_value(mine, held, jnp.ones(mine.shape[:1]))
-            held_by = 1.0 - bc_scale if anchor_scale is None else anchor_scale
+            held_by = jnp.asarray(1.0 - bc_scale if anchor_scale is None else anchor_scale, jnp.float32)
+            mine = mode[:, 0]
+
+            def drift_from_anchor():
+                held = jax.lax.stop_gradient(nets.deterministic_action(anchor, batch, _at(batch, 0))[:, 0])
+                return bc_loss_value(mine, held, jnp.ones(mine.shape[:1]))
+
+            # Skipped while the anchor weighs nothing (before the teacher leaves, after its release).
+            drift = jax.lax.cond(held_by > 0, drift_from_anchor, lambda: jnp.zeros(()))
             loss = loss + anchor_weight * held_by * drift
-            aux.update(anchor_drift=drift, anchor_scale=jnp.asarray(held_by, jnp.float32))
+            aux.update(anchor_drift=drift, anchor_scale=held_by)
         return loss, aux
 
     return actor_loss
