@@ -44,6 +44,14 @@ class StubNets:
     def policy_with_mode(self, p, episode, idx, noise):
         return (*self.policy(p, episode, idx, noise), self.deterministic_action(p, episode, idx))
 
+    def actor_features(self, p, episode):
+        steps = jnp.arange(8, dtype=jnp.float32)[None, :, None]  # the action's per-step part, as a feature
+        return jnp.broadcast_to(p["a"] + 0.1 * steps, (episode["t"].shape[0], 8, 3))
+
+    def policy_from_features(self, p, features, idx, noise):
+        a = jnp.take_along_axis(features, idx[..., None], axis=1)
+        return a, jnp.broadcast_to(p["lp"], idx.shape), a
+
     def q(self, p, episode, idx, action):
         return p["w"][:, None, None] * jnp.sum(action, -1)[None] + p["c"][:, None, None] * idx[None]
 
@@ -203,3 +211,46 @@ def test_lr_decays_linearly_to_zero(real_update):
     np.testing.assert_allclose(abs(float(s2.log_alpha - s1.log_alpha)), 0.5e-3, rtol=2e-2)
     jax.tree.map(np.testing.assert_array_equal, s3.actor_params, s2.actor_params)
     assert float(s3.log_alpha) == float(s2.log_alpha)
+
+
+@pytest.mark.parametrize("kind", ["egru", "stacked"])
+def test_the_shared_actor_pass_gives_the_two_pass_update(kind):
+    """One pass of the actor's extractor for the critic's target and the actor's loss, its gradient
+    carried back by a VJP, is the same step as two passes (cloning and anchor terms included)."""
+    from train.networks import make_networks
+    from train.sac import init_state
+
+    agent = AgentConfig(kind, hidden=(16, 16), gru_hidden=8, obs_norm=True)
+    cfg = SACConfig(batch_size=8, bc_weight=1.0, q_filter=False, anchor_weight=1.0)
+    T, nets = 5, make_networks(agent)
+    state = init_state(jax.random.PRNGKey(0), nets, cfg, T)
+    k = jax.random.split(jax.random.PRNGKey(1), 6)
+
+    def episodes(key, n):
+        ka, kb, kc, kd = jax.random.split(key, 4)
+        return {
+            "ee_xy": jax.random.normal(ka, (n, T + 1, 2)),
+            "z_obj": jax.random.normal(kb, (n, T + 1, 6)),
+            "z_goal": jax.random.normal(kc, (n, 6)),
+            "t": jax.random.randint(kd, (n,), 0, T),
+            "action": jax.random.uniform(kd, (n, 3), minval=-1, maxval=1),
+            "reward": -jnp.ones((n,)),
+        }
+
+    batch, demo = episodes(k[0], 8), episodes(k[1], 4)
+    anchor = init_state(jax.random.PRNGKey(5), nets, cfg, T).actor_params
+    steps = {
+        share: jax.jit(make_update(agent, cfg, nets=nets, share_actor_pass=share))(
+            state, batch, k[2], demo, 0.5, anchor, 0.5
+        )
+        for share in (True, False)
+    }
+    (shared, m_shared), (two, m_two) = steps[True], steps[False]
+    for (path, a), b in zip(jax.tree_util.tree_leaves_with_path(shared), jax.tree_util.tree_leaves(two)):
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6, err_msg=jax.tree_util.keystr(path))
+    assert not np.allclose(
+        shared.actor_params["params"]["mlp"]["Dense_0"]["kernel"],
+        state.actor_params["params"]["mlp"]["Dense_0"]["kernel"],
+    )  # a real step was taken
+    for name in ("critic_loss", "actor_loss", "bc_loss", "anchor_drift"):
+        np.testing.assert_allclose(m_shared[name], m_two[name], rtol=1e-5)

@@ -210,8 +210,15 @@ class Actor(nn.Module):
 
     def __call__(self, ee_xy, z_obj, z_goal, idx):
         """Gaussian parameters (mean, log_std) [B, K, A] at steps idx [B, K] of the episodes."""
-        x = normalize_inputs(self.norm, ee_xy, z_obj, z_goal)
-        return self.head(take_steps(self.features(*x), idx))
+        return self.head_at(self.episode_features(ee_xy, z_obj, z_goal), idx)
+
+    def episode_features(self, ee_xy, z_obj, z_goal):
+        """The extractor's features [B, L, F] at every step of the episodes (inputs normalised)."""
+        return self.features(*normalize_inputs(self.norm, ee_xy, z_obj, z_goal))
+
+    def head_at(self, features, idx):
+        """Gaussian parameters at steps idx [B, K] of ``episode_features``' output."""
+        return self.head(take_steps(features, idx))
 
     def step(self, carry, ee_xy, z_obj, z_goal):
         carry, feat = self.features.step(carry, *normalize_inputs(self.norm, ee_xy, z_obj, z_goal))
@@ -346,6 +353,20 @@ class Networks:
         """``policy``'s actions and log-probs, and the deterministic action tanh(mean) [B, K, A] of the
         same forward pass (the actor loss needs both: a second pass through a GRU costs as much)."""
         mean, log_std = self.actor.apply(actor_params, episode["ee_xy"], episode["z_obj"], episode["z_goal"], idx)
+        action, logp = squash(mean, log_std, noise)
+        return action, logp, jnp.tanh(mean)
+
+    def actor_features(self, actor_params, episode) -> jax.Array:
+        """The actor's features [B, L, F] at every step of the episodes: the part of its forward pass
+        (the GRU over the history, for uGRU and eGRU) that ``policy_from_features`` reads at any steps,
+        so one pass serves the critic's target (step t+1) and the actor's loss (step t)."""
+        return self.actor.apply(
+            actor_params, episode["ee_xy"], episode["z_obj"], episode["z_goal"], method=Actor.episode_features
+        )
+
+    def policy_from_features(self, actor_params, features, idx, noise) -> tuple[jax.Array, jax.Array, jax.Array]:
+        """``policy_with_mode`` at steps idx from ``actor_features``' output (the heads alone)."""
+        mean, log_std = self.actor.apply(actor_params, features, idx, method=Actor.head_at)
         action, logp = squash(mean, log_std, noise)
         return action, logp, jnp.tanh(mean)
 

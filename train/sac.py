@@ -82,10 +82,17 @@ def _at(batch, offset):
 
 
 def make_critic_loss(nets: Networks, gamma: float, target_clip: bool = False) -> Callable:
-    def critic_loss(critic_params, target_critic_params, actor_params, alpha, batch, key):
+    """``critic_loss(critic_params, target_critic_params, actor_params, alpha, batch, key, features=None)``:
+    with ``features`` (``nets.actor_features`` of the batch under ``actor_params``) the next action is
+    read from them instead of a pass of its own."""
+
+    def critic_loss(critic_params, target_critic_params, actor_params, alpha, batch, key, features=None):
         B = batch["t"].shape[0]
         noise = jax.random.normal(key, (B, 1, nets.action_dim))
-        next_action, next_logp = nets.policy(actor_params, batch, _at(batch, 1), noise)
+        if features is None:
+            next_action, next_logp = nets.policy(actor_params, batch, _at(batch, 1), noise)
+        else:
+            next_action, next_logp, _ = nets.policy_from_features(actor_params, features, _at(batch, 1), noise)
         next_q = nets.q(target_critic_params, batch, _at(batch, 1), next_action)[..., 0]
         target = td_target(batch["reward"], next_q, next_logp[:, 0], alpha, gamma)
         if target_clip:  # rewards are -1 or 0, so every return lies in [-1/(1-gamma), 0]
@@ -110,18 +117,33 @@ def make_actor_loss(
     (``objective`` "sac"), or the cloning term alone ("bc"). ``bc_scale`` is the teacher's annealing
     factor (DemoConfig.teacher_scale). With ``anchor`` (frozen actor params) and ``anchor_weight`` > 0,
     plus ``anchor_weight * anchor_scale`` times the squared distance to the anchor's deterministic action
-    on the batch's states (``anchor_scale`` defaults to ``1 - bc_scale``; DemoConfig.anchor_scale)."""
+    on the batch's states (``anchor_scale`` defaults to ``1 - bc_scale``; DemoConfig.anchor_scale).
+    With ``features`` (``nets.actor_features`` of the batch) the batch's actions come from them: the
+    loss is then a function of the heads' parameters and of ``features``, and the gradient through the
+    features is the caller's to add."""
     if objective not in ("sac", "bc"):
         raise ConfigError(f"actor objective must be 'sac' or 'bc', got {objective!r}")
     if objective == "bc" and (bc_weight <= 0 or q_filter):
         raise ConfigError("the cloning-only actor needs bc_weight > 0 and no Q-filter")
 
     def actor_loss(
-        actor_params, critic_params, alpha, batch, key, demo=None, bc_scale=1.0, anchor=None, anchor_scale=None
+        actor_params,
+        critic_params,
+        alpha,
+        batch,
+        key,
+        demo=None,
+        bc_scale=1.0,
+        anchor=None,
+        anchor_scale=None,
+        features=None,
     ):
         B = batch["t"].shape[0]
         noise = jax.random.normal(key, (B, 1, nets.action_dim))
-        action, logp, mode = nets.policy_with_mode(actor_params, batch, _at(batch, 0), noise)
+        if features is None:
+            action, logp, mode = nets.policy_with_mode(actor_params, batch, _at(batch, 0), noise)
+        else:  # the heads on given features: the caller carries their gradient back (`make_update`)
+            action, logp, mode = nets.policy_from_features(actor_params, features, _at(batch, 0), noise)
         logp = logp[:, 0]
         aux = {"logp": logp}
         if objective == "bc":
@@ -209,8 +231,13 @@ def make_update(
     total_updates: int | None = None,
     nets: Networks | None = None,
     axis_name: str | None = None,
+    share_actor_pass: bool = True,
 ) -> Callable[[SACState, dict, jax.Array], tuple[SACState, dict]]:
     """``update(state, batch, key) -> (state, metrics)``, one SAC gradient step (pure, jittable).
+
+    ``share_actor_pass``: the actor's extractor runs once over the batch for the critic's target and
+    the actor's loss (the same parameters, the same episodes), its gradient carried back by a VJP; the
+    same step as two passes, up to float rounding, and for uGRU and eGRU one GRU pass fewer per update.
 
     With ``axis_name`` (data-parallel training, train/data_parallel.py) the gradients are averaged
     over that mapped axis before they are used, so each device's batch is one shard of the step's batch
@@ -220,9 +247,10 @@ def make_update(
     nets = nets if nets is not None else make_networks(agent, action_dim)
     opt = make_optimizer(sac, total_updates)
     critic_loss = jax.value_and_grad(make_critic_loss(nets, sac.gamma, sac.target_clip), has_aux=True)
-    actor_loss = jax.value_and_grad(
-        make_actor_loss(nets, sac.bc_weight, sac.q_filter, sac.actor_loss, sac.anchor_weight), has_aux=True
-    )
+    actor_loss_fn = make_actor_loss(nets, sac.bc_weight, sac.q_filter, sac.actor_loss, sac.anchor_weight)
+    actor_loss = jax.value_and_grad(actor_loss_fn, has_aux=True)
+    # With the shared pass: the gradient w.r.t. the parameters the heads read, and w.r.t. the features.
+    actor_loss_on_features = jax.value_and_grad(actor_loss_fn, argnums=(0, 9), has_aux=True)
     alpha_grad = jax.value_and_grad(alpha_loss)
     target_entropy = sac.resolved_target_entropy(action_dim)
 
@@ -249,14 +277,23 @@ def make_update(
         k_next, k_pi = jax.random.split(key)
         alpha = jnp.exp(state.log_alpha)  # this update's coefficient, fixed before the alpha step
 
+        features = pull_back = None
+        if share_actor_pass:
+            # One pass of the actor's extractor over the batch's episodes serves the critic's target
+            # (step t+1) and the actor's loss (step t): both read the actor before this update.
+            features, pull_back = jax.vjp(lambda p: nets.actor_features(p, batch), state.actor_params)
         (c_loss, c_aux), c_grads = critic_loss(
-            state.critic_params, state.target_critic_params, state.actor_params, alpha, batch, k_next
+            state.critic_params, state.target_critic_params, state.actor_params, alpha, batch, k_next, features
         )
         critic_params, critic_opt_state = step(state.critic_params, state.critic_opt_state, mean(c_grads))
 
-        (a_loss, a_aux), a_grads = actor_loss(
-            state.actor_params, critic_params, alpha, batch, k_pi, demo, bc_scale, anchor, anchor_scale
-        )
+        actor_args = (state.actor_params, critic_params, alpha, batch, k_pi, demo, bc_scale, anchor, anchor_scale)
+        if share_actor_pass:
+            (a_loss, a_aux), (a_grads, feature_grads) = actor_loss_on_features(*actor_args, features)
+            # the chain rule's other half: through the features back to the extractor's parameters
+            a_grads = jax.tree.map(jnp.add, a_grads, pull_back(feature_grads)[0])
+        else:
+            (a_loss, a_aux), a_grads = actor_loss(*actor_args)
         logp = a_aux["logp"]
         al_loss, al_grad = alpha_grad(state.log_alpha, logp, target_entropy)
         a_grads, al_grad = mean((a_grads, al_grad))
