@@ -175,6 +175,7 @@ def test_the_teacher_free_preset_is_cpu_long_then_the_teacher_annealed_away():
             "preset",
             "train.demo.anneal_end",
             "train.demo.anneal_start",
+            "train.loop.eval_every_env_steps",
             "train.loop.total_env_steps",
             "train.sac.anchor_weight",
         ]

@@ -144,10 +144,12 @@ _PRESETS = {
     # within 1 cm on the difficult case (seeds 0, 1; docs/learners.md). Runs of the shortest hold
     # (the first comparison's) are `--set expert.hold_short=true`.
     "cpu-long": {**_CPU, "loop": {**_CPU["loop"], "total_env_steps": 64_000, "eval_every_env_steps": 16_000}},
-    # cpu-long's cloning, then the teacher annealed away and the agent alone for as long again.
+    # cpu-long's cloning, then the teacher annealed away and the agent alone for as long again. Its
+    # comparison scores the final actor, so in-run evaluations (about four batches' time each) only
+    # draw the curve: one every 32,000 env steps, at the teacher's last step among them.
     "teacher-free": {
         **_CPU,
-        "loop": {**_CPU["loop"], "total_env_steps": 128_000, "eval_every_env_steps": 16_000},
+        "loop": {**_CPU["loop"], "total_env_steps": 128_000, "eval_every_env_steps": 32_000},
         "sac": {**_CPU["sac"], "anchor_weight": _SAC_FEATURES["bc_weight"]},
         "demo": dataclasses.replace(_DEMO, anneal_start=64_000, anneal_end=80_000),
     },
