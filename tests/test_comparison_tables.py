@@ -236,7 +236,6 @@ BAD_DATA = {
         lambda f: _edit(f / "expert.json", lambda d: d["shapes"]["cylinder"]["summary"].pop("reward")),
         ["expert.json", "'shapes.cylinder.summary.reward' missing"],
     ),
-    "expert missing": (lambda f: (f / "expert.json").unlink(), ["expert.json: missing"]),
     "run file not JSON": (
         lambda f: (f / "runs/vpm-s0.json").write_text("{"),
         ["runs/vpm-s0.json", "not valid JSON"],
@@ -262,6 +261,18 @@ def test_unfinished_runs_need_no_scores_and_a_missing_folder_is_named(tmp_path):
     assert results.run("egru", 0).scores == {}
     with pytest.raises(DataError, match="nowhere.*not a data folder"):
         ct.load(tmp_path / "nowhere")
+
+
+def test_a_protocol_before_its_expert_row_loads_and_shows_the_row_missing(tmp_path):
+    folder = make_folder(tmp_path)
+    (folder / "expert.json").unlink()
+    results = ct.load(folder)
+    assert results.expert is None
+    with pytest.raises(KeyError, match="expert's row has not been scored"):
+        results.expert_row("success")
+    assert re.search(r"^\| expert \| missing \|", ct.success_table(results), re.M)
+    expert_rows = [line for line in ct.metrics_table(results).splitlines() if "| expert |" in line]
+    assert len(expert_rows) == 3 and all(line.endswith("| — | — | — | — |") for line in expert_rows), expert_rows
 
 
 # --- tables ----------------------------------------------------------------------------------------------

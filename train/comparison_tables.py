@@ -134,7 +134,7 @@ class Results:
     folder: Path
     protocol: Protocol
     runs: tuple[Run, ...]  # every agent x seed of the protocol, in its order (agent-major)
-    expert: Scores
+    expert: Scores | None  # None until expert.json is written
 
     def run(self, agent: str, seed: int) -> Run:
         for run in self.runs:
@@ -161,6 +161,8 @@ class Results:
 
     def expert_row(self, metric: str) -> np.ndarray:
         _check_metric(metric)
+        if self.expert is None:
+            raise KeyError(f"protocol {self.protocol.version}: the expert's row has not been scored (no expert.json)")
         return np.array([self.expert[shape][metric] for shape in self.protocol.shapes], dtype=float)
 
 
@@ -361,7 +363,8 @@ def load(folder: str | Path) -> Results:
         for seed in protocol.seeds
     )
     expert_path = folder / "expert.json"
-    expert = _load_scores(_read_json(expert_path), expert_path, protocol)
+    # The expert's row is scored after the protocol is fixed, like every run: until then it shows as missing.
+    expert = _load_scores(_read_json(expert_path), expert_path, protocol) if expert_path.exists() else None
     return Results(folder=folder, protocol=protocol, runs=runs, expert=expert)
 
 
@@ -491,12 +494,15 @@ def success_table(results: Results) -> str:
         else:
             row.append(_interval("success", *seed_stats.aggregate(table, "iqm", boot.reps, boot.confidence, boot.seed)))
         rows.append(row)
-    expert = results.expert_row("success")
-    iqm_expert = seed_stats.aggregate(expert[None], "iqm", boot.reps, boot.confidence, boot.seed)[0]
-    row = [EXPERT_LABEL, DASH]
-    for value in expert:
-        row += [_value("success", value), DASH]
-    rows.append(row + [_value("success", iqm_expert)])
+    if results.expert is None:
+        rows.append([EXPERT_LABEL, MISSING] + [DASH, DASH] * len(protocol.shapes) + [DASH])
+    else:
+        expert = results.expert_row("success")
+        iqm_expert = seed_stats.aggregate(expert[None], "iqm", boot.reps, boot.confidence, boot.seed)[0]
+        row = [EXPERT_LABEL, DASH]
+        for value in expert:
+            row += [_value("success", value), DASH]
+        rows.append(row + [_value("success", iqm_expert)])
     caption = (
         f"Success within 1 cm (%), per agent and shape: the mean over finished training seeds, then each "
         f"seed's score in seed order ({DASH}: not finished); IQM: the interquartile mean over all runs x "
@@ -523,7 +529,8 @@ def metrics_table(results: Results) -> str:
                 for i in range(len(protocol.shapes))
             ]
             rows.append([label, _label(agent), f"{len(table)}/{len(protocol.seeds)}", *cells])
-        rows.append([label, EXPERT_LABEL, DASH, *(_value(metric, v) for v in results.expert_row(metric))])
+        expert = [DASH] * len(protocol.shapes) if results.expert is None else results.expert_row(metric)
+        rows.append([label, EXPERT_LABEL, DASH, *(v if results.expert is None else _value(metric, v) for v in expert)])
     caption = (
         f"Mean episode reward (sum of the sparse rewards, 0 at best) and corrections per episode, per agent "
         f"and shape: the mean over finished training seeds [interval]. {_boot_caption(boot)}. "
