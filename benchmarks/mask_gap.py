@@ -4,7 +4,7 @@
 
 For each shape, `--poses` objects of Table I at their start poses (drawn as the environment draws
 them), each masked twice in CPU MuJoCo: rendered by the under-table camera and colour-filtered (as the
-real camera's pipeline), and by the NumPy port of the analytic projection. Reports the mean pixel
+real camera's pipeline), and by the analytic projection (`mjx_push.mask_geometry`, with NumPy). Reports the mean pixel
 counts seen only by the render and only by the projection (a systematic gap shows as one side larger),
 the IoU (mean, min) and the shift of the mask's centroid (pixels). Prints a table, writes JSON.
 """
@@ -36,7 +36,7 @@ def gap(rendered: np.ndarray, analytic: np.ndarray) -> dict:
 
 
 def measure(shape: str, poses: int, seed: int) -> dict:
-    from export import masks_np
+    from mjx_push import mask_geometry
     from export.cpu_env import CpuPushEnv, sample_params
     from mjx_push import objects
 
@@ -46,7 +46,7 @@ def measure(shape: str, poses: int, seed: int) -> dict:
     for i in range(poses):
         obs = env.reset(params=sample_params(seed + i, cfg, shape))
         info = env.info()
-        ana = masks_np.object_mask(shape, env.params.size, info["object_xy"], info["object_yaw"], info["object_z"])
+        ana = mask_geometry.object_mask(shape, env.params.size, info["object_xy"], info["object_yaw"], info["object_z"])
         rows.append(gap(obs["object_mask"], ana))
     env.close()
     shift = np.array([r["centroid_shift"] for r in rows])

@@ -7,8 +7,8 @@
 
 MJX runs the evaluation protocol's episodes (`train.evaluate`, the given seed) closed-loop with the
 policy (default: the scripted expert, which pushes in every episode) and records every step's joint
-positions and actions. CPU MuJoCo (`export.cpu_env.CpuPushEnv`: C `mj_step`, float64, the NumPy port
-of the controller) then starts each episode from the same object and replays the same actions
+positions and actions. CPU MuJoCo (`export.cpu_env.CpuPushEnv`: C `mj_step`, float64, the controller law
+under NumPy) then starts each episode from the same object and replays the same actions
 open-loop. No policy and no mask enters the comparison: what differs is the two engines (collision
 code, solver, float32 against float64) and the two controller implementations.
 

@@ -13,8 +13,8 @@ by MuJoCo's OpenGL renderer and thresholded, as the real camera's pipeline; ``an
 projection MJX trains with).
 
 Per episode and mask source it records, step by step, what each simulator's policy saw and did: the
-object latent (MJX's recomputed from its recorded state with the NumPy port of the analytic masks and
-of the encoder), the action, and after the step the object's xy and the flange's xy (both by C forward
+object latent (MJX's recomputed from its recorded state with the analytic masks under NumPy and the
+NumPy port of the encoder), the action, and after the step the object's xy and the flange's xy (both by C forward
 kinematics from the joint positions). It reports, per shape and in all: success within the task's
 radius in each simulator, the fraction of episodes whose outcome agrees, the correlation of final
 distances, and the first step at which each quantity parts (latent, action, flange, object) and which
@@ -147,7 +147,7 @@ def flange_xy(sim):
 def mjx_trajectory(rec: dict, sim, numpy_policy) -> dict:
     """Per-step latent/flange/object of a recorded MJX episode, read with CPU MuJoCo's kinematics and
     the NumPy analytic masks (the same projection as MJX's)."""
-    from export import masks_np
+    from mjx_push import mask_geometry
     from export.cpu_env import quat_yaw
 
     a, flange = sim.ids.object_qpos, flange_xy(sim)
@@ -155,7 +155,7 @@ def mjx_trajectory(rec: dict, sim, numpy_policy) -> dict:
     params = rec["params"]
     masks = np.stack(
         [
-            masks_np.object_mask(rec["geom_type"], params.size, q[a : a + 2], quat_yaw(q[a + 3 : a + 7]), q[a + 2])
+            mask_geometry.object_mask(rec["geom_type"], params.size, q[a : a + 2], quat_yaw(q[a + 3 : a + 7]), q[a + 2])
             for q in qpos[:-1]
         ]
     )
@@ -170,7 +170,7 @@ def mjx_trajectory(rec: dict, sim, numpy_policy) -> dict:
 def cpu_run(env, numpy_policy, rec: dict, seed: int, T: int) -> tuple[dict, dict, np.ndarray | None]:
     """One episode on CPU MuJoCo from the recorded episode's object: (trajectory, final info, latents of
     the analytic masks of the same states, when the env renders)."""
-    from export import masks_np
+    from mjx_push import mask_geometry
     from export.cpu_env import quat_yaw
 
     obs = env.reset(seed=seed, params=rec["params"], geom_type=rec["geom_type"])
@@ -184,7 +184,7 @@ def cpu_run(env, numpy_policy, rec: dict, seed: int, T: int) -> tuple[dict, dict
         z = numpy_policy.encode(obs["object_mask"])
         if rendered:
             q = env._s.data.qpos
-            mask = masks_np.object_mask(
+            mask = mask_geometry.object_mask(
                 env.geom_type, env.params.size, q[a : a + 2], quat_yaw(q[a + 3 : a + 7]), q[a + 2]
             )
             analytic.append(numpy_policy.encode(mask))

@@ -3,15 +3,19 @@
 - `policy_file`: one `.npz` of float32 weights + a JSON metadata record (`export_policy`, `load_npz`).
 - `numpy_policy`: `NumpyPolicy`, the exported policy in plain NumPy (no JAX); `torch_policy`: the same as
   an optional torch `nn.Module`.
-- `cpu_env`: the task on CPU MuJoCo (`CpuPushEnv`), with NumPy ports of the controller (`controller_np`),
-  the masks (`masks_np`) and the correction counters (`corrections_np`); `gym_env`: it as the Gymnasium
-  goal environment "MjxPush-v0" (registered by importing this package).
+- `cpu_env`: the task on CPU MuJoCo (`CpuPushEnv`), running the MJX environment's own maths with NumPy
+  (`mjx_push.control_law`, `mjx_push.mask_geometry`, `mjx_push.task_rules`) on MuJoCo's data
+  (`controller_np`: the law on `MjData`; `corrections_np`: the counters as Python scalars); `gym_env`: it
+  as the Gymnasium goal environment "MjxPush-v0" (registered by importing this package).
 - `camera`: the real camera's image -> mask pipeline; `deploy`: the robot / camera / policy interfaces and
   the deployment loop, with a simulated robot and camera.
 - `sim_eval` and `metrics`: the evaluation protocol (docs/task.md section 7) in CPU MuJoCo; `cli`: the
   `mjx-push export` and `mjx-push deploy` commands. See docs/deploy.md.
 
-Importing this package imports neither JAX nor MuJoCo (a NumPy policy on a robot needs neither).
+Importing this package imports neither JAX nor MuJoCo (a NumPy policy on a robot needs neither), and
+the robot path (`deploy`, `numpy_policy`, `policy_file`, `camera`, `cpu_env`, `panda_py_robot`) imports
+no JAX, flax, brax or MJX (tests/test_deploy_imports.py); only drawing random objects in `CpuPushEnv`
+and exporting a trained policy import JAX, when called.
 """
 
 import os as _os

@@ -7,7 +7,7 @@ Stages, in order (each configured by a field of `MaskPipeline`):
    cropped view covers the simulated camera's field of view (65 degrees vertical from 0.5 m below the
    table top: a 0.64 m square centred under (0.4, 0.0)).
 2. flip: `flip_horizontal` (mirror columns), `flip_vertical` (mirror rows), to reach the simulator's pixel
-   convention: columns grow with world +x, rows with world +y (see `mjx_push.masks`).
+   convention: columns grow with world +x, rows with world +y (see `mjx_push.mask_geometry`).
 3. colour threshold: a pixel is the object when every channel lies within [lower, upper] (inclusive), in
    `color_space` "rgb" (0..255 each) or "hsv" (hue in degrees 0..360, saturation and value 0..1). A hue
    range with lower > upper wraps through 0 (e.g. red: lower hue 340, upper hue 20).

@@ -1,8 +1,7 @@
-"""NumPy port of `mjx_push.corrections` (docs/task.md section 7): the same counters, one substep at a time.
-
-overshoot: d_{k-1} < tau and d_k >= tau and |d_k - tau| > eps; distance: a flag is set when
-d_k > d_{k-1} + eps, and while it is set d_k < d_{k-1} - eps counts one correction and clears it.
-d_{-1} = +inf at reset; non-finite distances never count (every comparison with NaN is False).
+"""The correction counters (docs/task.md section 7) on CPU: `mjx_push.task_rules.correction_events`, the
+rule the MJX environment's `mjx_push.corrections` applies, on Python floats (float64), one substep at a
+time. Kept apart from the JAX pytree for its layout: a frozen dataclass of Python scalars, cheap at every
+1 ms substep and read directly by the evaluation's records.
 """
 
 from __future__ import annotations
@@ -10,7 +9,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from mjx_push.corrections import EPS, TAU
+from mjx_push.task_rules import EPS, TAU, correction_events
 
 
 @dataclass(frozen=True)
@@ -24,9 +23,5 @@ class Corrections:
 def update(c: Corrections, d: float, tau: float = TAU, eps: float = EPS) -> Corrections:
     """Counters after observing the distance `d` of one more substep."""
     d = float(d)
-    over = c.d_prev < tau and d >= tau and abs(d - tau) > eps
-    grew = d > c.d_prev + eps
-    shrank = d < c.d_prev - eps
-    counted = c.flag and shrank
-    flag = False if counted else (c.flag or grew)
-    return Corrections(d_prev=d, flag=flag, overshoot=c.overshoot + int(over), distance=c.distance + int(counted))
+    over, counted, flag = correction_events(c.d_prev, c.flag, d, tau, eps)
+    return Corrections(d_prev=d, flag=bool(flag), overshoot=c.overshoot + int(over), distance=c.distance + int(counted))

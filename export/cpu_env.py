@@ -7,15 +7,17 @@ Gymnasium users (`export.gym_env`) and as the simulated robot behind the deploym
 - the scene: `mjx_push.scene.build_model`, with the object's size, mass, inertia and friction written into
   the `MjModel` as `mjx_push.objects.apply` does for MJX, then `mujoco.mj_setConst` (which derives the
   inverse weights exactly instead of the MJX approximation);
-- the configuration: `mjx_push.env.EnvConfig` (objects, controller, solver, action scale, substep range,
-  episode length, tau, observation noise, workspace, out-of-bounds band);
-- the step: action sanitising, workspace clip and a_s -> substeps decoding as in `PushEnv.begin_step`
-  (decoded in float32, like the MJX environment, so the same a_s gives the same count); the controller
-  (`export.controller_np`, a NumPy port) at every 1 ms substep or held per step; the correction counters
-  (`export.corrections_np`) at every substep; the validity check of `PushEnv._valid`, an invalid state
-  being replaced by the episode's initial state. One addition: C MuJoCo silently resets `MjData` to the
-  model's default pose when qpos, qvel or qacc become non-finite or huge (MJX lets the NaN through), so a
-  step during which MuJoCo raised one of those warnings is invalid as well.
+- the configuration: `mjx_push.config.EnvConfig` (objects, controller, solver, action scale, substep
+  range, episode length, tau, observation noise, workspace, out-of-bounds band);
+- the step: action sanitising, workspace clip and a_s -> substeps decoding (`mjx_push.task_rules`, the
+  functions `PushEnv.begin_step` runs with JAX; decoded in float32, like the MJX environment, so the same
+  a_s gives the same count); the controller (`mjx_push.control_law` on MjData's kinematics,
+  `export.controller_np`) at every 1 ms substep or held per step; the correction counters
+  (`export.corrections_np`, the rule of `mjx_push.task_rules`) at every substep; the validity check of
+  `PushEnv._valid`, an invalid state being replaced by the episode's initial state. One addition: C
+  MuJoCo silently resets `MjData` to the model's default pose when qpos, qvel or qacc become non-finite
+  or huge (MJX lets the NaN through), so a step during which MuJoCo raised one of those warnings is
+  invalid as well.
 - substep ordering: the controller reads the kinematics that the previous `mj_step` left in `MjData`
   (mj_step computes them before integrating), exactly as the MJX loop reads `mjx.step`'s output; the
   flange xy of the observation and of `info["ee_xy_true"]` comes from the same place (one substep old).
@@ -25,11 +27,12 @@ Masks (`mask_source`):
   `render_filter` (the object's emissive blue: B > 128, R < 80, G < 80; nothing else in the scene is
   blue, the glass table is invisible and the arm is grey). Needs an OpenGL context: on a Linux machine
   without a display, `import export` (or `import mjx_push`) selects EGL before mujoco is imported.
-- "analytic": `export.masks_np`, the NumPy port of `mjx_push.masks` (no renderer, no JAX).
+- "analytic": `mjx_push.mask_geometry` with NumPy, the masks MJX computes with JAX (no renderer, no JAX).
 - "auto" (default): "render" if a renderer can be created, else "analytic" (see `mask_source_used`).
 
 Object parameters are drawn with `mjx_push.objects.sample` (JAX, jitted once per shape and config) from
-a key seeded by the environment's NumPy generator, unless `reset` is given an `ObjectParams`.
+a key seeded by the environment's NumPy generator, unless `reset` is given an `ObjectParams`: only that
+draw imports JAX (on first use); everything else here runs without it.
 """
 
 from __future__ import annotations
@@ -45,9 +48,13 @@ import numpy as np
 
 from export import controller_np as ctl
 from export import corrections_np as corr
-from export import masks_np
-from mjx_push import objects, scene
-from mjx_push.env import EnvConfig
+from mjx_push import mask_geometry, scene, task_rules
+from mjx_push.config import EnvConfig, ObjectConfig, ObjectParams
+from mjx_push.config import half_height as _half_height
+
+# The step's rules, shared with the MJX environment (NumPy by default; importable from here as before).
+from mjx_push.task_rules import flange_target, quat_yaw, sanitize_action, yaw_quat
+from mjx_push.task_rules import substep_count as decode_substeps
 from mjx_push.renderer import new_renderer, renderer_available, unavailable_reason  # noqa: F401
 from mjx_push.errors import ConfigError
 
@@ -75,47 +82,7 @@ def render_filter(rgb: np.ndarray) -> np.ndarray:
     return (rgb[..., 2] > BLUE_MIN) & (rgb[..., 0] < RED_GREEN_MAX) & (rgb[..., 1] < RED_GREEN_MAX)
 
 
-def sanitize_action(action: np.ndarray) -> tuple[np.ndarray, bool]:
-    """As `mjx_push.env.sanitize_action`: non-finite components become 0 (reported), the rest are clipped
-    to [-1, 1]."""
-    finite = np.isfinite(action)
-    return np.clip(np.where(finite, action, 0.0), -1.0, 1.0), not bool(finite.all())
-
-
-def decode_substeps(a_s: float, substeps: tuple[int, int]) -> int:
-    """As `mjx_push.env.decode_substeps`: a_s in [-1, 1] -> integer substeps in [low, high], linear and
-    truncated, evaluated in float32 like the MJX environment so both give the same count."""
-    lo, hi = substeps
-    f = np.float32
-    a = f(np.clip(f(a_s), f(-1.0), f(1.0)))
-    n = np.floor(f(lo) + (a + f(1.0)) * f(0.5) * f(hi - lo))
-    return int(np.clip(n, lo, hi))
-
-
-def flange_target(
-    ee_xy: np.ndarray,
-    a_xy: np.ndarray,
-    action_scale: float,
-    workspace_x: tuple[float, float],
-    workspace_y: tuple[float, float],
-    home_z: float,
-) -> np.ndarray:
-    """The flange target (3,) of an action, as `PushEnv.begin_step`: ee_xy + a_xy * action_scale clipped to
-    the workspace, z at the home flange height. Shared by the simulator and the deployment loop."""
-    xy = np.asarray(ee_xy, np.float64)[:2] + np.asarray(a_xy, np.float64)[:2] * action_scale
-    return np.array([np.clip(xy[0], *workspace_x), np.clip(xy[1], *workspace_y), home_z])
-
-
-def yaw_quat(yaw: float) -> np.ndarray:
-    return np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])
-
-
-def quat_yaw(q: np.ndarray) -> float:
-    w, x, y, z = q
-    return float(math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
-
-
-def params_to_numpy(params: objects.ObjectParams) -> objects.ObjectParams:
+def params_to_numpy(params: ObjectParams) -> ObjectParams:
     """An `ObjectParams` with float64 NumPy leaves (accepts JAX or NumPy arrays), shapes checked."""
     shapes = {"size": (3,), "mass": (), "inertia": (3,), "friction": (3,), "start": (3,), "goal": (3,)}
     out = {}
@@ -128,25 +95,22 @@ def params_to_numpy(params: objects.ObjectParams) -> objects.ObjectParams:
         out[name] = v
     if np.any(out["size"][:2] <= 0) or out["mass"] <= 0 or np.any(out["inertia"] <= 0):
         raise ConfigError("params.size, params.mass and params.inertia must be positive")
-    return objects.ObjectParams(**out)
+    return ObjectParams(**out)
 
 
-def half_height(params: objects.ObjectParams, geom_type: str) -> float:
-    return float(params.size[2] if geom_type == "box" else params.size[1])
+def half_height(params: ObjectParams, geom_type: str) -> float:
+    return float(_half_height(params, geom_type))
 
 
 def apply_params(
-    m: mujoco.MjModel, d: mujoco.MjData, params: objects.ObjectParams, ids: scene.SceneIds, geom_type: str
+    m: mujoco.MjModel, d: mujoco.MjData, params: ObjectParams, ids: scene.SceneIds, geom_type: str
 ) -> None:
     """Write the object's size, friction, mass and inertia into `m` (as `objects.apply` does for MJX) and
-    let `mj_setConst` recompute what MuJoCo derives from them (inverse weights, subtree masses)."""
+    let `mj_setConst` recompute what MuJoCo derives from them (inverse weights, subtree masses; MJX
+    approximates those instead, which is why the two writers stay apart)."""
     g, b = ids.object_geom, ids.object_body
     size = params.size
-    if geom_type == "box":
-        rbound, aabb_half = np.linalg.norm(size), size
-    else:
-        rbound = math.hypot(size[0], size[1])
-        aabb_half = np.array([size[0], size[0], size[1]])
+    rbound, aabb_half = task_rules.object_bounds(size, geom_type)
     m.geom_size[g] = size
     m.geom_rbound[g] = rbound
     m.geom_aabb[g, 3:] = aabb_half
@@ -157,13 +121,17 @@ def apply_params(
 
 
 @functools.lru_cache(maxsize=None)
-def _sampler(cfg: objects.ObjectConfig, geom_type: str):
-    import jax  # only needed to draw objects; imported lazily so analytic-mask users never start it
+def _sampler(cfg: ObjectConfig, geom_type: str):
+    # Only drawing objects needs JAX: imported here, so the rest of this module (the deployment loop's
+    # simulated robot, analytic masks, given objects) runs without it.
+    import jax
+
+    from mjx_push import objects
 
     return jax.jit(lambda key, home: objects.sample(key, cfg, geom_type, home))
 
 
-def sample_params(seed: int, cfg: objects.ObjectConfig, geom_type: str) -> objects.ObjectParams:
+def sample_params(seed: int, cfg: ObjectConfig, geom_type: str) -> ObjectParams:
     """One object drawn with `mjx_push.objects.sample` from `jax.random.PRNGKey(seed)` (NumPy leaves)."""
     import jax
 
@@ -219,13 +187,11 @@ class CpuPushEnv:
         weakref.finalize(self, _close_renderers, self._renderers)
         self.mask_source_used = self._resolve_mask_source(mask_source, geom_type or shapes[0])
         self.geom_type: str | None = None  # set by reset
-        self.params: objects.ObjectParams | None = None
+        self.params: ObjectParams | None = None
         self._warned_clip = False
 
     # --- public API ----------------------------------------------------------------------------------
-    def reset(
-        self, seed: int | None = None, params: objects.ObjectParams | None = None, geom_type: str | None = None
-    ) -> dict:
+    def reset(self, seed: int | None = None, params: ObjectParams | None = None, geom_type: str | None = None) -> dict:
         """Start an episode. `seed` reseeds the environment's generator (shape draw, object draw,
         observation noise); `params` (an `ObjectParams`, JAX or NumPy leaves) fixes the object; `geom_type`
         its shape (defaults to the fixed shape, else drawn)."""
@@ -433,7 +399,7 @@ class CpuPushEnv:
         """Mask of the object at `obj_qpos` (7,), the rest of the scene at `qpos`."""
         if self.mask_source_used == "analytic":
             # Like the MJX environment: upright object at the pose's xy, yaw and centre height.
-            return masks_np.object_mask(
+            return mask_geometry.object_mask(
                 self.geom_type, self.params.size, obj_qpos[:2], quat_yaw(obj_qpos[3:7]), obj_qpos[2]
             )
         a = self._s.ids.object_qpos
@@ -464,11 +430,8 @@ class CpuPushEnv:
         d, a = self._s.data, self._s.ids.object_qpos
         if not (np.all(np.isfinite(d.qpos)) and np.all(np.isfinite(d.qvel))):
             return False
-        x, y, z = d.qpos[a : a + 3]
         rest = scene.TABLE_TOP + half_height(self.params, self.geom_type)
-        on_table = scene.TABLE_X[0] <= x <= scene.TABLE_X[1] and scene.TABLE_Y[0] <= y <= scene.TABLE_Y[1]
-        in_band = rest - self.config.oob_sink < z < rest + self.config.oob_rise
-        return bool(on_table and in_band)
+        return bool(self.config.object_in_bounds(*d.qpos[a : a + 3], rest))
 
     def _unstable_count(self) -> int:
         w = self._s.data.warning

@@ -6,8 +6,9 @@
 
 Per step, exactly as the simulator: camera frame -> `MaskPipeline.to_mask` -> `policy.act(object_mask,
 goal_mask, ee_xy)` -> flange target = ee_xy + (a_x, a_y) * action_scale clipped to the workspace, z at the
-home flange height (`export.cpu_env.flange_target`, the function the simulator uses) -> `robot.move_to` ->
-`robot.wait_ms(a_s)` (one simulator substep is 1 ms, so the policy's a_s substeps are a_s milliseconds).
+home flange height (`mjx_push.task_rules.flange_target`, the function both simulators use) ->
+`robot.move_to` -> `robot.wait_ms(a_s)` (one simulator substep is 1 ms, so the policy's a_s substeps are
+a_s milliseconds).
 
 Interfaces (`typing.Protocol`, so any object with these methods fits):
 - `Robot`: `flange_xy()`, `move_to(xyz)` (sets the target the robot's controller drives the flange to and
@@ -22,7 +23,7 @@ controller at every 1 ms substep; camera: the rendered under-table view, which t
 
 Connecting a real Panda (no robot library is imported by this package; full notes in docs/deploy.md):
 implement `Robot` with panda-py, running the simulator's own task-space velocity law
-(`export.controller_np.law`) at 1 kHz in panda-py's joint-velocity controller, so the real arm follows
+(`mjx_push.control_law.law`) at 1 kHz in panda-py's joint-velocity controller, so the real arm follows
 targets as the simulated one does; `export/panda_py_robot.py` is a sketch of that class.
 """
 
@@ -34,10 +35,11 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from export.camera import MaskPipeline
-from export.cpu_env import CpuPushEnv, flange_target
+from export.cpu_env import CpuPushEnv
 from mjx_push import scene
-from mjx_push.env import EnvConfig
+from mjx_push.config import EnvConfig
 from mjx_push.errors import ConfigError
+from mjx_push.task_rules import flange_target, sanitize_action
 
 _DEFAULTS = EnvConfig()
 DEFAULT_WORKSPACE = (_DEFAULTS.workspace_x, _DEFAULTS.workspace_y)  # ((x_low, x_high), (y_low, y_high))
@@ -135,10 +137,8 @@ def run_episode(
         ee = np.asarray(robot.flange_xy(), np.float64).reshape(2)
         mask = pipeline.to_mask(camera.frame())
         a_x, a_y, a_s = policy.act(mask, goal_mask, ee)
-        a_xy = np.array([a_x, a_y], np.float64)
-        finite = np.isfinite(a_xy)
-        bad_actions += int(not finite.all())
-        a_xy = np.clip(np.where(finite, a_xy, 0.0), -1.0, 1.0)
+        a_xy, bad = sanitize_action(np.array([a_x, a_y], np.float64))
+        bad_actions += int(bad)
         if isinstance(a_s, (bool, np.bool_)) or not float(a_s).is_integer() or not 1 <= a_s <= max_wait_ms:
             raise ConfigError(f"policy a_s_substeps must be an integer in [1, {max_wait_ms}], got {a_s!r} at step {t}")
         a_s = int(a_s)

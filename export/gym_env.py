@@ -47,7 +47,7 @@ from gymnasium import spaces
 from export import ENV_ID
 from export.cpu_env import CAMERAS, MAX_RENDER_SIZE, CpuPushEnv
 from mjx_push import scene
-from mjx_push.env import EnvConfig
+from mjx_push.config import EnvConfig
 from mjx_push.errors import ConfigError
 
 N_PIX = scene.IMAGE_SIZE * scene.IMAGE_SIZE

@@ -28,16 +28,9 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from export.policy_file import PolicyFile, load_npz
 from mjx_push.errors import ConfigError
+from mjx_push.task_rules import substep_count as decode_substeps  # a_s -> substeps, as mjx_push.env's (float32)
 
 F32 = np.float32
-
-
-def decode_substeps(a_s: float, substeps: tuple[int, int]) -> int:
-    """a_s in [-1, 1] -> integer substeps, exactly `mjx_push.env.decode_substeps` (float32 arithmetic)."""
-    lo, hi = substeps
-    a = F32(np.clip(F32(a_s), F32(-1.0), F32(1.0)))
-    n = np.floor(F32(lo) + (a + F32(1.0)) * F32(0.5) * F32(hi - lo))
-    return int(np.clip(n, lo, hi))
 
 
 def _sigmoid(x: np.ndarray) -> np.ndarray:

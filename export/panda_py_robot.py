@@ -1,10 +1,10 @@
 """A sketch of `export.deploy.Robot` on a real Franka Panda with panda-py (not installed by mjx-push, and
 never run here: check the API names against your panda-py version before trusting it with an arm).
 
-It runs the simulator's own task-space velocity law (`export.controller_np.law`) at 1 kHz in panda-py's
-`IntegratedVelocity` joint-velocity controller, so the real flange follows targets as the simulated one
-does. panda-py is imported only when a robot is made, so this module imports (and CI checks that it
-still fits the `Robot` interface) without it.
+It runs the simulator's own task-space velocity law (`mjx_push.control_law.law`, with NumPy) at 1 kHz
+in panda-py's `IntegratedVelocity` joint-velocity controller, so the real flange follows targets as the
+simulated one does. panda-py is imported only when a robot is made, so this module imports (and CI
+checks that it still fits the `Robot` interface) without it.
 
     robot = PandaPyRobot("172.16.0.2")
     result = export.deploy.run_episode(policy, robot, camera, pipeline, goal_mask)
@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from export.controller_np import law
-from mjx_push.controller import ControllerConfig
+from mjx_push.control_law import law
+from mjx_push.config import ControllerConfig
 from mjx_push.scene import HOME_QPOS
 
 

@@ -305,9 +305,9 @@ def _json_safe(x):
 
 
 def _pixel_convention() -> str:
-    from mjx_push import masks
+    from mjx_push import mask_geometry
 
-    doc = masks.__doc__ or ""
+    doc = mask_geometry.__doc__ or ""
     start = doc.find("Pixel convention")
     para = doc[start:].split("\n\n")[0] if start >= 0 else ""
     return " ".join(para.split())

@@ -16,7 +16,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from mjx_push.env import EnvConfig
+from mjx_push.config import EnvConfig
 
 VIDEO_HEIGHT = 192
 VIDEO_SIZES = {"top": (VIDEO_HEIGHT, 256), "under_table": (VIDEO_HEIGHT, VIDEO_HEIGHT)}

@@ -1,6 +1,7 @@
-"""Correction counters of docs/task.md section 7, updated at every 1 ms substep on noise-free positions.
-
-With d_k the object-goal distance at substep k, tau the success radius and eps a dead band:
+"""Correction counters of docs/task.md section 7 as a JAX pytree, updated at every 1 ms substep on
+noise-free positions. The rule is `mjx_push.task_rules.correction_events` (shared with the CPU
+environment's `export.corrections_np`): with d_k the object-goal distance at substep k, tau the success
+radius and eps a dead band,
 - overshoot: d_{k-1} < tau and d_k >= tau and |d_k - tau| > eps;
 - distance: a flag is set when d_k > d_{k-1} + eps; while it is set, d_k < d_{k-1} - eps counts one
   correction and clears the flag.
@@ -12,8 +13,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 from flax import struct
 
-TAU = 0.01
-EPS = 2e-5
+from mjx_push.task_rules import EPS, TAU, correction_events
 
 
 @struct.dataclass
@@ -35,11 +35,7 @@ class Corrections:
 
 def update(c: Corrections, d: jnp.ndarray, tau: float = TAU, eps: float = EPS) -> Corrections:
     """Counters after observing the distance `d` of one more substep."""
-    over = (c.d_prev < tau) & (d >= tau) & (jnp.abs(d - tau) > eps)
-    grew = d > c.d_prev + eps
-    shrank = d < c.d_prev - eps
-    counted = c.flag & shrank
-    flag = jnp.where(counted, False, c.flag | grew)
+    over, counted, flag = correction_events(c.d_prev, c.flag, d, tau, eps, xp=jnp)
     return Corrections(
         d_prev=d,
         flag=flag,

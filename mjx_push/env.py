@@ -15,56 +15,16 @@ validity). `step` chains them with an unbounded `advance`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import jax
 import jax.numpy as jnp
-import numpy as np
 from brax.envs.base import Env, State
 from mujoco import mjx
 
 from mjx_push import controller as ctl
 from mjx_push import corrections as corr
-from mjx_push import masks, objects, scene
+from mjx_push import masks, objects, scene, task_rules
+from mjx_push.config import EnvConfig  # the task settings, without JAX (also imported from here)
 from mjx_push.errors import ConfigError
-
-
-@dataclass(frozen=True)
-class EnvConfig:
-    """Task settings (docs/task.md section 3). Nested configs hold the object distribution, the controller and
-    the MJX solver."""
-
-    objects: objects.ObjectConfig = field(default_factory=objects.ObjectConfig)
-    controller: ctl.ControllerConfig = field(default_factory=ctl.ControllerConfig)
-    solver: scene.SolverSettings = field(default_factory=scene.SolverSettings)
-    action_scale: float = 1.0  # metres per unit of a_x, a_y
-    substeps: tuple[int, int] = (10, 600)  # a_s in [-1, 1] maps linearly onto this, truncated
-    episode_length: int = 50
-    success_tau: float = corr.TAU
-    obs_noise: float = 1e-4  # std of the Gaussian noise on the observed flange xy
-    workspace_x: tuple[float, float] = (0.10, 0.65)
-    workspace_y: tuple[float, float] = (-0.25, 0.25)
-    # Out-of-bounds: the object's centre must stay above the table footprint and within this height
-    # band around its resting height (below: sank through; above: flew off).
-    oob_sink: float = 0.02
-    oob_rise: float = 0.15
-
-    def __post_init__(self):
-        lo, hi = self.substeps
-        if not (isinstance(lo, (int, np.integer)) and isinstance(hi, (int, np.integer)) and 1 <= lo <= hi):
-            raise ConfigError(f"env.substeps must be integers 1 <= low <= high, got {self.substeps!r}")
-        if not self.action_scale > 0:
-            raise ConfigError(f"env.action_scale must be > 0, got {self.action_scale}")
-        if self.episode_length < 1:
-            raise ConfigError(f"env.episode_length must be >= 1, got {self.episode_length}")
-        if not self.success_tau > 0:
-            raise ConfigError(f"env.success_tau must be > 0, got {self.success_tau}")
-        if self.obs_noise < 0:
-            raise ConfigError(f"env.obs_noise must be >= 0, got {self.obs_noise}")
-        for name in ("workspace_x", "workspace_y"):
-            r = getattr(self, name)
-            if len(r) != 2 or not r[0] < r[1]:
-                raise ConfigError(f"env.{name} must be (low, high) with low < high, got {r!r}")
 
 
 # Explicit dtypes everywhere in the state: a weakly typed scalar returned by reset but strongly typed
@@ -74,27 +34,24 @@ def _f0() -> jax.Array:
     return jnp.zeros((), jnp.result_type(float))
 
 
+# The step's rules (`mjx_push.task_rules`, shared with the CPU environment) evaluated with jax.numpy.
 def decode_substeps(a_s: jax.Array, substeps: tuple[int, int]) -> jax.Array:
-    """a_s in [-1, 1] -> integer substeps in [low, high] (linear, truncated)."""
-    lo, hi = substeps
-    n = jnp.floor(lo + (jnp.clip(a_s, -1.0, 1.0) + 1.0) * 0.5 * (hi - lo))
-    return jnp.clip(n, lo, hi).astype(jnp.int32)
+    """a_s in [-1, 1] -> integer substeps in [low, high] (linear, truncated), int32."""
+    return task_rules.decode_substeps(a_s, substeps, xp=jnp)
 
 
 def sanitize_action(action: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Documented clip: non-finite components become 0 and the rest are clipped to [-1, 1].
     Returns the action and whether anything was non-finite (counted in info['bad_actions'])."""
-    finite = jnp.isfinite(action)
-    return jnp.clip(jnp.where(finite, action, 0.0), -1.0, 1.0), ~jnp.all(finite)
+    return task_rules.sanitize_action(action, xp=jnp)
 
 
 def yaw_quat(yaw: jax.Array) -> jax.Array:
-    return jnp.stack([jnp.cos(yaw / 2), 0.0 * yaw, 0.0 * yaw, jnp.sin(yaw / 2)])
+    return task_rules.yaw_quat(yaw, xp=jnp)
 
 
 def quat_yaw(q: jax.Array) -> jax.Array:
-    w, x, y, z = q
-    return jnp.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    return task_rules.quat_yaw(q, xp=jnp)
 
 
 class PushEnv(Env):
@@ -183,9 +140,9 @@ class PushEnv(Env):
         action, bad = sanitize_action(action)
         cfg = self.config
         ee = state.pipeline_state.site_xpos[self.ids.flange_site]
-        xy = ee[:2] + action[:2] * cfg.action_scale
-        xy = jnp.stack([jnp.clip(xy[0], *cfg.workspace_x), jnp.clip(xy[1], *cfg.workspace_y)])
-        target = jnp.concatenate([xy, self.home_flange[2:]])
+        target = task_rules.flange_target(
+            ee, action[:2], cfg.action_scale, cfg.workspace_x, cfg.workspace_y, self.home_flange[2], xp=jnp
+        )
         n = decode_substeps(action[2], cfg.substeps)
         info = dict(state.info)
         info.update(target=target, substeps_left=n, substeps=n, bad_actions=info["bad_actions"] + bad)
@@ -310,8 +267,5 @@ class PushEnv(Env):
     def _valid(self, data: mjx.Data, params: objects.ObjectParams) -> jax.Array:
         a = self.ids.object_qpos
         finite = jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.isfinite(data.qvel))
-        x, y, z = data.qpos[a], data.qpos[a + 1], data.qpos[a + 2]
         rest = scene.TABLE_TOP + objects.half_height(params, self.geom_type)
-        on_table = (x >= scene.TABLE_X[0]) & (x <= scene.TABLE_X[1]) & (y >= scene.TABLE_Y[0]) & (y <= scene.TABLE_Y[1])
-        in_band = (z > rest - self.config.oob_sink) & (z < rest + self.config.oob_rise)
-        return finite & on_table & in_band
+        return finite & self.config.object_in_bounds(data.qpos[a], data.qpos[a + 1], data.qpos[a + 2], rest)

@@ -8,97 +8,25 @@ here per environment, and `apply` writes it into that environment's copy of the 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Literal
-
 import jax
 import jax.numpy as jnp
-from flax import struct
 
-from mjx_push import scene
+from mjx_push import scene, task_rules
+from mjx_push.config import (  # noqa: F401  (the JAX-free definitions, under their usual names here)
+    MODES,
+    OBJECT_PARAM_FIELDS,
+    RECT_MIN_DIFF,
+    SHAPE_FILTERS,
+    ObjectConfig,
+    ObjectParams,
+    ShapeFilter,
+    half_height,
+)
 from mjx_push.errors import ConfigError
 
-ShapeFilter = Literal["any", "cylinder", "cuboid", "square", "rectangular"]
-SHAPE_FILTERS = ("any", "cylinder", "cuboid", "square", "rectangular")
-MODES = ("uniform", "improved")
-RECT_MIN_DIFF = 0.02  # "rectangular": length and width differ by at least this
-
-
-def _check_range(name: str, r, lo_bound: float = 0.0):
-    if len(r) != 2:
-        raise ConfigError(f"objects.{name} must be a (low, high) pair, got {r!r}")
-    lo, hi = float(r[0]), float(r[1])
-    if not (lo == lo and hi == hi) or lo > hi or lo < lo_bound:
-        raise ConfigError(f"objects.{name} must satisfy {lo_bound} <= low <= high, got {r!r}")
-
-
-@dataclass(frozen=True)
-class ObjectConfig:
-    """Object distribution: Table I of the paper by default. Every range is (low, high), full sizes."""
-
-    mode: Literal["uniform", "improved"] = "uniform"
-    shape: ShapeFilter = "any"
-    radius: tuple[float, float] = (0.04, 0.055)
-    side: tuple[float, float] = (0.05, 0.11)  # cuboid length and width, each
-    min_height: float = 0.046
-    max_height_cuboid: float = 0.08  # further capped by the cuboid's length and width
-    max_height_cylinder: float = 0.055
-    mass: tuple[float, float] = (0.001, 1.0)
-    friction: tuple[float, float] = (0.2, 1.0)
-    torsional: tuple[float, float] = (0.001, 0.01)
-    mu_k: float = 0.4  # improved mode: fixed sliding friction coefficient
-    exp_scale: float = 1.0 / 7.0  # improved mode: scale of the exponential
-    pose_range: float = 0.1  # start and goal: EE_home_xy + U[-r, r]^2
-    min_start_dist: float = 0.1  # start at least this far from EE_home_xy
-
-    def __post_init__(self):
-        if self.mode not in MODES:
-            raise ConfigError(f"objects.mode must be one of {MODES}, got {self.mode!r}")
-        if self.shape not in SHAPE_FILTERS:
-            raise ConfigError(f"objects.shape must be one of {SHAPE_FILTERS}, got {self.shape!r}")
-        _check_range("radius", self.radius, 1e-3)
-        _check_range("side", self.side, 1e-3)
-        _check_range("mass", self.mass, 1e-5)
-        _check_range("friction", self.friction, scene.MIN_OBJECT_FRICTION)
-        _check_range("torsional", self.torsional, scene.TABLE_FRICTION[1])
-        if not 0.005 <= self.min_height <= 0.2:
-            raise ConfigError(f"objects.min_height must be in [0.005, 0.2], got {self.min_height}")
-        for name in ("max_height_cuboid", "max_height_cylinder"):
-            if getattr(self, name) < self.min_height:
-                raise ConfigError(f"objects.{name} must be >= objects.min_height, got {getattr(self, name)}")
-        if self.radius[1] > 0.08 or self.side[1] > 0.16:
-            raise ConfigError("objects.radius high must be <= 0.08 and objects.side high <= 0.16 (scene limits)")
-        if self.shape == "rectangular" and self.side[1] - self.side[0] < RECT_MIN_DIFF:
-            raise ConfigError(
-                f"objects.side must span at least {RECT_MIN_DIFF} for shape 'rectangular', got {self.side}"
-            )
-        if self.mu_k <= 0:
-            raise ConfigError(f"objects.mu_k must be > 0, got {self.mu_k}")
-        if self.exp_scale <= 0:
-            raise ConfigError(f"objects.exp_scale must be > 0, got {self.exp_scale}")
-        if not 0 < self.pose_range <= 0.25:
-            raise ConfigError(f"objects.pose_range must be in (0, 0.25], got {self.pose_range}")
-        if not 0 <= self.min_start_dist < self.pose_range * 2**0.5:
-            raise ConfigError(f"objects.min_start_dist must be in [0, pose_range*sqrt(2)), got {self.min_start_dist}")
-
-    def shapes(self) -> tuple[str, ...]:
-        """Geom types this filter draws: subset of scene.SHAPES."""
-        if self.shape == "any":
-            return scene.SHAPES
-        return ("cylinder",) if self.shape == "cylinder" else ("box",)
-
-
-@struct.dataclass
-class ObjectParams:
-    """One environment's object. `size` is the MJCF geom size (box: half extents; cylinder: radius,
-    half height, 0); poses are (x, y, yaw)."""
-
-    size: jax.Array  # (3,)
-    mass: jax.Array  # ()
-    inertia: jax.Array  # (3,) principal, about the centre of mass
-    friction: jax.Array  # (3,) sliding, torsional, rolling
-    start: jax.Array  # (3,)
-    goal: jax.Array  # (3,)
+# ObjectParams is defined without JAX (mjx_push.config); it becomes a pytree here, with its fields as
+# children and the key paths of the `flax.struct.dataclass` it used to be.
+jax.tree_util.register_dataclass(ObjectParams, data_fields=list(OBJECT_PARAM_FIELDS), meta_fields=[])
 
 
 def sample_improved_mass(key: jax.Array, cfg: ObjectConfig, shape=()) -> jax.Array:
@@ -180,20 +108,11 @@ def sample(key: jax.Array, cfg: ObjectConfig, geom_type: str, home_xy: jax.Array
     return ObjectParams(size=size, mass=mass, inertia=inertia, friction=friction, start=start, goal=goal)
 
 
-def half_height(params: ObjectParams, geom_type: str) -> jax.Array:
-    return params.size[2] if geom_type == "box" else params.size[1]
-
-
 def apply(model, params: ObjectParams, ids: scene.SceneIds, geom_type: str):
     """This environment's model: the object's size, mass, inertia, friction and the quantities MuJoCo
     derives from them (bounding radius, inverse weights used by the constraint solver's regularisation)."""
     g, b, v = ids.object_geom, ids.object_body, ids.object_qvel
-    if geom_type == "box":
-        rbound = jnp.linalg.norm(params.size)
-        aabb_half = params.size
-    else:
-        rbound = jnp.sqrt(params.size[0] ** 2 + params.size[1] ** 2)
-        aabb_half = jnp.stack([params.size[0], params.size[0], params.size[1]])
+    rbound, aabb_half = task_rules.object_bounds(params.size, geom_type, xp=jnp)
     inv_rot = jnp.mean(1.0 / params.inertia)
     inv_w = jnp.stack([1.0 / params.mass, inv_rot])
     dof_inv = jnp.concatenate([jnp.full(3, 1.0 / params.mass), jnp.full(3, inv_rot)])

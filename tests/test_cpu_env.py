@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from mujoco import mjx
 
-from export import controller_np, corrections_np, masks_np
+from export import controller_np, corrections_np
 from export.cpu_env import CpuPushEnv, decode_substeps, renderer_available, sanitize_action
-from mjx_push import controller, masks, objects, scene
+from mjx_push import controller, mask_geometry, masks, objects, scene
 from mjx_push import corrections as corr
 from mjx_push import env as mjx_env
 from tests.helpers import B, HOME_XY, a_s_for, make_params, renderer_or_skip
@@ -124,22 +124,22 @@ def _random_objects(shape, n, rng):
 @pytest.mark.parametrize("shape", scene.SHAPES)
 def test_numpy_masks_equal_jax_masks(shape):
     size, xy, yaw, z = _random_objects(shape, 64, np.random.default_rng(3))
-    got = masks_np.object_mask(shape, size, xy, yaw, z)
+    got = mask_geometry.object_mask(shape, size, xy, yaw, z)
     f = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
     batched = jax.jit(jax.vmap(lambda s, p, y, h: masks.object_mask(shape, s, p, y, h)))
     ref = np.asarray(batched(f(size), f(xy), f(yaw), f(z)))
     assert got.shape == ref.shape == (64, scene.IMAGE_SIZE, scene.IMAGE_SIZE)
     assert (got == ref).mean() > 0.999, f"pixel agreement {(got == ref).mean():.6f}"
     # One pose at a time gives the same as the batch.
-    np.testing.assert_array_equal(masks_np.object_mask(shape, size[5], xy[5], yaw[5], z[5]), got[5])
+    np.testing.assert_array_equal(mask_geometry.object_mask(shape, size[5], xy[5], yaw[5], z[5]), got[5])
 
 
 def test_numpy_mask_pixel_convention():
     cx, cy = scene.CAMERA_POS[:2]
     size = np.array([0.02, 0.02, 0.02])
-    centre = np.argwhere(masks_np.object_mask("box", size, (cx, cy), 0.0, scene.TABLE_TOP + 0.02)).mean(0)
+    centre = np.argwhere(mask_geometry.object_mask("box", size, (cx, cy), 0.0, scene.TABLE_TOP + 0.02)).mean(0)
     np.testing.assert_allclose(centre, [31.5, 31.5], atol=0.01)
-    right = np.argwhere(masks_np.object_mask("box", size, (cx + 0.1, cy), 0.0, scene.TABLE_TOP + 0.02)).mean(0)
+    right = np.argwhere(mask_geometry.object_mask("box", size, (cx + 0.1, cy), 0.0, scene.TABLE_TOP + 0.02)).mean(0)
     assert right[1] > centre[1] + 5 and abs(right[0] - centre[0]) < 0.01
 
 
@@ -158,7 +158,7 @@ def test_rendered_masks_match_analytic(shape):
         p = base.replace(size=size[i], start=np.array([xy[i, 0], xy[i, 1], yaw[i]]))
         obs = env.reset(params=p)
         info = env.info()
-        ana = masks_np.object_mask(shape, size[i], info["object_xy"], info["object_yaw"], info["object_z"])
+        ana = mask_geometry.object_mask(shape, size[i], info["object_xy"], info["object_yaw"], info["object_z"])
         ren = obs["object_mask"]
         assert ren.sum() > 10, "the renderer must see every object"
         ious.append((ana & ren).sum() / (ana | ren).sum())

@@ -7,11 +7,10 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from export import masks_np
 from export.camera import MaskPipeline, dilate, erode, resize_area, resize_nearest, rgb_to_hsv
 from export.cpu_env import CpuPushEnv, render_filter
 from export.deploy import Camera, Policy, Robot, SimCamera, SimRobot, run_episode
-from mjx_push import scene
+from mjx_push import mask_geometry, scene
 from tests.helpers import HOME_XY, a_s_for, make_params, renderer_or_skip
 
 BLUE = (0, 0, 255)
@@ -244,7 +243,7 @@ def _mask_centroid_xy(mask, z_mid):
     """World xy of a mask's pixel centroid, back-projected at height z_mid (inverse of the camera model)."""
     r, c = np.argwhere(mask).mean(0) + 0.5 - N / 2
     depth = z_mid - scene.CAMERA_POS[2]
-    return scene.CAMERA_POS[:2] + np.array([c, r]) * depth / masks_np.FOCAL
+    return scene.CAMERA_POS[:2] + np.array([c, r]) * depth / mask_geometry.FOCAL
 
 
 class StandOffPolicy:
@@ -296,7 +295,7 @@ def test_run_episode_with_rendered_camera():
 
 def _iou_with_analytic(env, mask):
     i = env.info()
-    ana = masks_np.object_mask("box", env.params.size, i["object_xy"], i["object_yaw"], i["object_z"])
+    ana = mask_geometry.object_mask("box", env.params.size, i["object_xy"], i["object_yaw"], i["object_z"])
     return (ana & mask).sum() / (ana | mask).sum()
 
 

@@ -16,13 +16,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from export import masks_np
 from export import policy_file as pfile
 from export.cli import Deploy, Export
 from export.metrics import summarize_records
 from export.numpy_policy import NumpyPolicy, decode_substeps
 from mjx_push import encoder as enc
-from mjx_push import scene
+from mjx_push import mask_geometry, scene
 from mjx_push.env import EnvConfig
 from mjx_push.env import decode_substeps as jax_decode_substeps
 from train.config import AGENT_KINDS
@@ -137,8 +136,8 @@ def _moving_object(geom: str, seed: int, steps: int = 51):
     s = np.linspace(0.0, 1.0, steps)[:, None]
     xy = start + s * (goal - start) + 0.01 * np.sin(7 * s) * rng.normal(size=2)
     yaw = rng.uniform(-np.pi, np.pi) + 1.5 * s[:, 0]
-    masks = masks_np.object_mask(geom, np.broadcast_to(size, (steps, 3)), xy, yaw, np.full(steps, z))
-    return masks, masks_np.object_mask(geom, size, goal, yaw[-1] + 0.3, z)
+    masks = mask_geometry.object_mask(geom, np.broadcast_to(size, (steps, 3)), xy, yaw, np.full(steps, z))
+    return masks, mask_geometry.object_mask(geom, size, goal, yaw[-1] + 0.3, z)
 
 
 @pytest.mark.parametrize("kind", AGENT_KINDS)
