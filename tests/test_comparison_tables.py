@@ -484,10 +484,10 @@ def repo(tmp_path, monkeypatch):
 def test_check_passes_after_write_and_fails_naming_a_changed_block(repo, capsys):
     assert ct.default_files("data/v1") == [Path("README.md"), Path("docs/comparison.md")]
     assert ct.main(["data/v1", "--check"]) == 1  # "old content" everywhere
-    assert len(capsys.readouterr().err.strip().splitlines()) == 6
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1 + len(ct.BLOCK_NAMES)
     assert ct.main(["data/v1", "--write"]) == 0
     assert ct.main(["data/v1", "--check"]) == 0
-    assert "6 generated block(s) of data/v1 up to date in 2 file(s)" in capsys.readouterr().out
+    assert f"{1 + len(ct.BLOCK_NAMES)} generated block(s) of data/v1 up to date in 2 file(s)" in capsys.readouterr().out
     doc = repo / "docs" / "comparison.md"
     text = doc.read_text()
     line = next(line for line in text.splitlines() if line.startswith("| eGRU | 5/5 |"))
@@ -595,3 +595,20 @@ def test_without_a_flag_every_table_is_printed(repo, capsys):
     for name, table in ct.render_blocks(ct.load("data/v1")).items():
         assert f"## {name}\n\n{table}" in out
     assert (repo / "docs" / "comparison.md").read_bytes() == doc
+
+
+def test_targets_are_met_by_a_precise_egru_and_not_by_a_middling_one(tmp_path):
+    """T1: eGRU >= 95 % on every shape with its interval's lower end >= 90 %; T2: overshoot on cuboids at
+    most 60 % of the expert's (expert: 1.5 / 2.0) at success within 3 points of the expert's (85 / 80 %)."""
+    tables = _tables()
+    tables["success"]["egru"] = np.full((5, 3), 0.97) + np.linspace(-0.01, 0.01, 5)[:, None]
+    tables["overshoot"]["egru"] = np.tile([0.5, 0.8, 1.1], (5, 1))  # 0.53 and 0.55 of the expert's
+    (t1, _, v1), (t2, measured, v2) = ct.targets(ct.load(make_folder(tmp_path / "a", tables)))
+    assert (t1, v1, t2, v2) == ("T1", "met", "T2", "met"), measured
+    tables["overshoot"]["egru"] = np.tile([0.5, 1.0, 1.1], (5, 1))  # square: 0.67 of the expert's
+    assert [v for _, _, v in ct.targets(ct.load(make_folder(tmp_path / "b", tables)))] == ["met", "not met"]
+    tables["success"]["egru"][:, 2] = [0.99, 0.99, 0.99, 0.80, 0.99]  # mean 95.2 %, lower end below 90 %
+    assert ct.targets(ct.load(make_folder(tmp_path / "c", tables)))[0][2] == "not met"
+    one_seed = {(a, s): ct.MISSING for a in AGENTS for s in SEEDS if s > 0}
+    assert [v for _, _, v in ct.targets(ct.load(make_folder(tmp_path / "d", tables, one_seed)))] == ["untested"] * 2
+    assert "| T1 |" in ct.targets_table(ct.load(make_folder(tmp_path / "e", tables)))
