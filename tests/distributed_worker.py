@@ -1,6 +1,6 @@
 """One process of a data-parallel run on localhost, started by tests/test_data_parallel.py: joins the
-run through `jax.distributed` with one CPU device of its own, trains through `train.run.run` in a shared run directory, and writes its final actor parameters to
-`RUN_DIR/params-<process id>.npz` and its summary to `RUN_DIR/summary-<process id>.json`.
+run through `jax.distributed` with one CPU device of its own, trains through `train.run.run` in a shared run directory, and writes its final learner state (all
+but the replay shards) to `RUN_DIR/state-<process id>.npz` and its summary to `RUN_DIR/summary-<process id>.json`.
 
     python -m tests.distributed_worker PORT PROCESS_ID NUM_PROCESSES RUN_DIR CONFIG_JSON [--stop-after N] [--resume]
 
@@ -50,8 +50,12 @@ def main(argv=None) -> int:
 
         adapter = make_toy(success_tau=cfg.env.success_tau)
     summary, state = run_mod.run(cfg, a.run_dir, resume=a.resume, adapter=adapter, stop_after=a.stop_after)
-    leaves = jax.tree.leaves(jax.device_get(state.sac.actor_params))
-    np.savez(a.run_dir / f"params-{a.process_id}.npz", *leaves)
+    # Every field but the replay shards (each process holds its own): this process's copy of each.
+    local = jax.tree_util.tree_leaves_with_path(state.replace(buffer=None))
+    np.savez(
+        a.run_dir / f"state-{a.process_id}.npz",
+        **{jax.tree_util.keystr(path): np.asarray(x.addressable_shards[0].data) for path, x in local},
+    )
     summary = {**summary, "devices": jax.device_count(), "processes": jax.process_count()}
     (a.run_dir / f"summary-{a.process_id}.json").write_text(json.dumps(summary, default=float))
     jax.distributed.shutdown()

@@ -46,28 +46,42 @@ def test_the_update_over_two_devices_averages_the_devices_gradients(real_update)
     single = jax.jit(make_update(agent, cfg, nets=nets))
     mesh = Mesh(np.array(jax.devices()[:2]), (data_parallel.AXIS,))
     update = make_update(agent, cfg, nets=nets, axis_name=data_parallel.AXIS)
-    # Each device's resulting parameters, stacked over a leading device axis.
+    # Each device's whole resulting state (actor, critics, targets, temperature, every optimiser
+    # state, the step), stacked over a leading device axis.
     sharded = jax.jit(
         jax.shard_map(
-            lambda s, b: jax.tree.map(lambda x: x[None], update(s, b, KEY)[0].actor_params),
+            lambda s, b: jax.tree.map(lambda x: x[None], update(s, b, KEY)[0]),
             mesh=mesh,
             in_specs=(P(), P(data_parallel.AXIS)),
             out_specs=P(data_parallel.AXIS),
             check_vma=False,
         )
     )
-    leaves = lambda tree: np.concatenate([np.ravel(x) for x in jax.tree.leaves(tree)])  # noqa: E731
     both = sharded(state, batch)
-    np.testing.assert_array_equal(
-        leaves(jax.tree.map(lambda x: x[0], both)), leaves(jax.tree.map(lambda x: x[1], both))
-    )
+    _assert_same_on_every_device(both, lambda x: [x[0], x[1]])
     same = sharded(state, jax.tree.map(lambda x: jnp.concatenate([x, x]), half(batch, 0)))
-    alone = [leaves(single(state, half(batch, i), KEY)[0].actor_params) for i in range(2)]
-    np.testing.assert_allclose(leaves(jax.tree.map(lambda x: x[0], same)), alone[0], rtol=1e-5, atol=1e-7)
-    averaged = leaves(jax.tree.map(lambda x: x[0], both))
-    before = leaves(state.actor_params)
-    for own in alone:  # each half's own step moves some parameter differently from the averaged one
-        assert np.abs((averaged - before) - (own - before)).max() > 1e-4
+    alone = [single(state, half(batch, i), KEY)[0] for i in range(2)]
+    for (path, a), b in zip(
+        jax.tree_util.tree_leaves_with_path(jax.tree.map(lambda x: x[0], same)), jax.tree.leaves(alone[0])
+    ):
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-7, err_msg=jax.tree_util.keystr(path))
+    averaged = jax.tree.map(lambda x: x[0], both)
+    for part in ("actor_params", "critic_params"):  # each is averaged, not a device's own step
+        for own in alone:
+            moved = [
+                np.abs(np.ravel(a) - np.ravel(o)).max()
+                for a, o in zip(jax.tree.leaves(getattr(averaged, part)), jax.tree.leaves(getattr(own, part)))
+            ]
+            assert max(moved) > 1e-6, part
+
+
+def _assert_same_on_every_device(tree, per_device) -> None:
+    """Every leaf of ``tree`` holds the same value on every device (``per_device(leaf)`` lists them),
+    naming the first leaf that differs."""
+    for path, leaf in jax.tree_util.tree_leaves_with_path(tree):
+        first, *rest = [np.asarray(v) for v in per_device(leaf)]
+        for other in rest:
+            np.testing.assert_array_equal(first, other, err_msg=f"differs across devices: {jax.tree_util.keystr(path)}")
 
 
 def test_without_a_coordinator_the_run_is_one_process(monkeypatch):
@@ -114,6 +128,26 @@ def test_each_device_holds_its_share_and_the_expert_demonstrates_on_every_device
     # The two devices' environments are different episodes (each device has a key of its own).
     goals = np.asarray(eps["goal_xy"])
     assert not np.allclose(goals[:4], goals[4:])
+
+
+@two_devices
+def test_every_replicated_field_of_the_learner_stays_equal_on_both_devices():
+    """After batches with updates, every field of the state but the replay shards (actor, critics,
+    targets, temperature, optimiser states, input statistics, keys, counters, best actor) holds the
+    same value on both devices: each device's copy is read on its own, so a missing average of any
+    gradient or of the statistics' episodes shows here."""
+    base = toy_config("vpm", 640, data_parallel=2)
+    cfg = dataclasses.replace(base, agent=dataclasses.replace(base.agent, obs_norm=True))
+    runner = Runner(make_train(cfg, make_toy(success_tau=TAU)))
+    ts, learned = runner.init(jax.random.PRNGKey(0)), 0
+    while int(ts.env_steps) < cfg.loop.total_env_steps:
+        ts, metrics = runner.iteration(ts)
+        learned += bool(metrics["learning"])
+    assert learned >= 2 and ts.norm_stats  # updates ran, and there are statistics to compare
+    _assert_same_on_every_device(
+        ts.replace(buffer=None),
+        lambda x: [shard.data for shard in sorted(x.addressable_shards, key=lambda s: s.device.id)],
+    )
 
 
 def _free_port() -> int:
@@ -168,8 +202,10 @@ def test_two_processes_train_one_run_resume_it_and_learn_the_toy_task(tmp_path):
     assert all(s["stopped_at_env_steps"] == 12 * 80 for s in first), first
     assert sorted(p.name for p in (run_dir / "checkpoints").iterdir() if p.name.isdigit()) == ["800"]
     _two_processes(run_dir, config, "--resume")
-    a, b = (np.load(run_dir / f"params-{i}.npz") for i in range(2))
-    assert a.files and all(np.array_equal(a[k], b[k]) for k in a.files)
+    a, b = (np.load(run_dir / f"state-{i}.npz") for i in range(2))
+    assert len(a.files) > 20 and a.files == b.files  # the whole learner state, not the actor alone
+    for k in a.files:
+        np.testing.assert_array_equal(a[k], b[k], err_msg=f"differs across processes: {k}")
     summaries = [json.loads((run_dir / f"summary-{i}.json").read_text()) for i in range(2)]
     assert all(s["devices"] == 2 and s["processes"] == 2 for s in summaries)
     main = summaries[0]
