@@ -6,8 +6,7 @@ the encoder, with the presets of `mjx-push train --preset`.
 * ``cpu``: the README's main job: an agent that learns to push to 1 cm on 2 CPU cores in under 10
   minutes (VPM, 35,200 env steps, the steady-hold expert; within 1 cm on 100 standard episodes:
   docs/results.md).
-* ``cpu-long``: 64,000 env steps, 25-30 minutes alone on 2 CPU cores, for 1 cm (eGRU: 64-80 % within
-  1 cm by seed).
+* ``cpu-long``: 64,000 env steps with the teacher kept, for 1 cm (docs/results.md).
 * ``teacher-free``: the comparison's recipe in one run, 128,000 env steps: ``cpu-long``'s 64,000 with
   the teacher, then the teacher annealed away by 80,000 (cloning weight and expert share to 0, the
   actor held to its copy of 64,000 by the anchor), then the agent's own to the end. Whether the anchor
@@ -87,8 +86,8 @@ def env_for(agent: str, objects_cfg: objects.ObjectConfig | None = None, **env_f
 # The action box of the measured presets (EnvConfig's defaults are the paper's: +-1 m offsets, unit
 # gain, 10-600 substeps). With a gain of 20 the flange settles on its target within ~150 substeps,
 # so an action is a displacement of at most 5 cm (as in Fetch and panda-gym) and a_s mostly sets how
-# long the step lasts; the scripted expert reaches 1 cm in 98-100 % of episodes with it at ~75
-# substeps a step, against ~300 for the paper's range (benchmarks/expert.py).
+# long the step lasts; the scripted expert reaches 1 cm with it in a quarter of the paper's substeps
+# per step (benchmarks/expert.py).
 ACTION_BOX = dict(action_scale=0.05, substeps=(10, 200), controller=ControllerConfig(gain=20.0))
 
 # The learner features every measured preset shares (AgentConfig / SACConfig / DemoConfig fields).
@@ -98,10 +97,10 @@ _DEMO = DemoConfig(warmup=True, fraction=0.25, label_all=True)
 
 # The expert holds still with its usual step length instead of its shortest one, so its a_s label is
 # the same at every step: cloners smoothed the jump into too-short steps near the goal, and the main
-# job's 1 cm success rose most on cuboids (benchmarks/bc_gap.py, docs/learners.md).
+# job's 1 cm success rose most on cuboids (benchmarks/bc_gap.py, docs/history/).
 _STEADY_EXPERT = ExpertConfig(hold_short=False)
 # (Going round an overshot object always on one side, `circle_cut=2.2`, measured no better over three
-# seeds of the main job: 64 / 74 / 47 % within 1 cm against 60 / 64 / 57; docs/learners.md.)
+# seeds of the main job; docs/history/.)
 
 # "cpu", the README's main job. Evaluations cost about four batches each (100 episodes in chunks of
 # 32), so it evaluates once, at the end; metrics.csv and the progress lines follow training success per batch.
@@ -139,10 +138,9 @@ _PRESETS = {
         expert=_STEADY_EXPERT,
     ),
     "cpu": _CPU,
-    # The comparison's budget: the main job's learner and teacher, 64,000 env steps, evaluated every
-    # 16,000. The steady hold lifted eGRU here from 87-93 / 62-63 / 60-61 % to 98-99 / 87 / 71-72 %
-    # within 1 cm on the difficult case (seeds 0, 1; docs/learners.md). Runs of the shortest hold
-    # (the first comparison's) are `--set expert.hold_short=true`.
+    # The main job's learner and teacher for 64,000 env steps, evaluated every 16,000 (the earlier
+    # comparisons' budget, docs/history/). Runs of the shortest hold (the first comparison's) are
+    # `--set expert.hold_short=true`.
     "cpu-long": {**_CPU, "loop": {**_CPU["loop"], "total_env_steps": 64_000, "eval_every_env_steps": 16_000}},
     # cpu-long's cloning, then the teacher annealed away and the agent alone for as long again. Its
     # comparison scores the final actor, so in-run evaluations (about four batches' time each) only
