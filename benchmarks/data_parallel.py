@@ -11,7 +11,8 @@ updates of one episode batch. The rollout: one episode of the preset's `num_envs
 environments through `Runner.rollout` (policy actions), compiled once, then timed twice. The global
 batch sizes are the same at every device count; with D devices each device runs 1/D of them. Prints a
 table and writes JSON. On a CPU the host devices share the cores (`mjx_push.xla.use_cpu_devices`): the
-ratio says what splitting buys there; on a GPU node each device is a chip.
+ratio says what splitting buys there; on a GPU node each device is a chip. The 1-device row is the
+default run (`mjx-push train`): its rollout already uses every core, its learner one device.
 """
 
 from __future__ import annotations
@@ -61,7 +62,11 @@ def measure(agent: str, preset: str, devices: int, batches: int, rollout: bool) 
     cfg = dataclasses.replace(
         run.train, loop=dataclasses.replace(run.train.loop, data_parallel=devices, warmup_env_steps=0)
     )
-    adapter = make_push_adapter(run.env, enc.load(None), expert_config=run.expert, max_devices=1)
+    # One device is the default run: the learner on one device, the rollout's environments split over
+    # every host device (as `mjx-push train` does); data parallel steps each device's share on it.
+    adapter = make_push_adapter(
+        run.env, enc.load(None), expert_config=run.expert, max_devices=None if devices == 1 else 1
+    )
     runner = Runner(make_train(cfg, adapter))
     ts = runner.init(jax.random.PRNGKey(0))
     row = {"devices": devices, "num_envs": cfg.loop.num_envs, "updates_per_batch": cfg.loop.updates_per_iteration}
