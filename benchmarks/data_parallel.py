@@ -19,11 +19,10 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
-import platform
 import time
 from pathlib import Path
 
+from benchmarks.output import write_json
 from mjx_push import xla
 
 
@@ -131,15 +130,7 @@ def main(argv=None) -> None:
             f"{r.get('env_steps_speedup', float('nan')):.2f}",
         )
     Console().print(table)
-    out = {
-        "agent": a.agent,
-        "preset": a.preset,
-        "machine": {"platform": platform.platform(), "backend": jax.default_backend(), "jax": jax.__version__},
-        "rows": rows,
-    }
-    a.out.parent.mkdir(parents=True, exist_ok=True)
-    a.out.write_text(json.dumps(out, indent=2) + "\n")
-    print(f"wrote {a.out}")
+    write_json(a.out, {"agent": a.agent, "preset": a.preset, "rows": rows})
 
 
 if __name__ == "__main__":

@@ -15,11 +15,10 @@ table and writes JSON. Run it alone on the machine: other processes on the cores
 from __future__ import annotations
 
 import argparse
-import json
-import platform
 import time
 from pathlib import Path
 
+from benchmarks.output import write_json
 from mjx_push import xla
 
 
@@ -94,13 +93,7 @@ def main(argv=None) -> None:
             f"{r['ms_per_update']:.1f}",
         )
     Console().print(table)
-    out = {
-        "machine": {"platform": platform.platform(), "backend": jax.default_backend(), "jax": jax.__version__},
-        "rows": rows,
-    }
-    a.out.parent.mkdir(parents=True, exist_ok=True)
-    a.out.write_text(json.dumps(out, indent=2) + "\n")
-    print(f"wrote {a.out}")
+    write_json(a.out, {"rows": rows})
 
 
 if __name__ == "__main__":

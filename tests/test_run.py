@@ -119,26 +119,38 @@ def test_a_finished_run_trained_longer_equals_a_run_of_that_length(full_run, tmp
     assert "has finished" in capsys.readouterr().out
 
 
-def test_a_checkpoint_written_before_a_state_field_existed_resumes_exactly(full_run, tmp_path, toy):
-    """Checkpoints of runs trained before `TrainState.anchor_actor_params` existed (the comparison's
-    seed-2 runs) hold every other field: they resume, the new field at its initial value."""
+def _rewrite_checkpoint_120(d, cfg, toy, transform) -> None:
+    """A run stopped after 3 batches, its checkpoint of 120 env steps written again as `transform` of its
+    state (what an older or a damaged release would have left), its record unchanged."""
+    import shutil
+
     import orbax.checkpoint as ocp
 
-    cfg, _, _, full_state = full_run
-    d = tmp_path / "old"
     run_mod.run(cfg, d, adapter=toy, checkpoint_every=1, stop_after=3)
     ckpts = checkpoints.Checkpoints(d / "checkpoints")
     state = latest_state(d, cfg, toy)
     meta = ckpts.manager.restore(120, args=ocp.args.Composite(meta=ocp.args.JsonRestore()))["meta"]
-    old = {f.name: getattr(state, f.name) for f in dataclasses.fields(state) if f.name not in checkpoints.ADDED_FIELDS}
-    import shutil
-
     shutil.rmtree(d / "checkpoints" / "120")
     ckpts = checkpoints.Checkpoints(d / "checkpoints")
-    ckpts.manager.save(
-        120, args=ocp.args.Composite(state=ocp.args.StandardSave(old), meta=ocp.args.JsonSave(meta)), force=True
-    )
+    saved = ocp.args.Composite(state=ocp.args.StandardSave(transform(state)), meta=ocp.args.JsonSave(meta))
+    ckpts.manager.save(120, args=saved, force=True)
     ckpts.manager.wait_until_finished()
+
+
+def test_a_checkpoint_written_before_a_state_field_existed_resumes_exactly(full_run, tmp_path, toy):
+    """Checkpoints of runs trained before `TrainState.anchor_actor_params` existed (the comparison's
+    seed-2 runs) hold every other field: they resume, the new field at its initial value."""
+
+    cfg, _, _, full_state = full_run
+    d = tmp_path / "old"
+    _rewrite_checkpoint_120(
+        d,
+        cfg,
+        toy,
+        lambda state: {
+            f.name: getattr(state, f.name) for f in dataclasses.fields(state) if f.name not in checkpoints.ADDED_FIELDS
+        },
+    )
     with pytest.warns(UserWarning, match="written before TrainState had anchor_actor_params"):
         _, resumed = run_mod.run(cfg, d, adapter=toy, resume=True)
     for (path, a), b in zip(
@@ -150,25 +162,17 @@ def test_a_checkpoint_written_before_a_state_field_existed_resumes_exactly(full_
 def test_a_checkpoint_whose_added_field_does_not_match_is_refused_not_defaulted(full_run, tmp_path, toy):
     """The fallback for fields added since is for checkpoints that lack them: one that holds the field
     with other shapes is refused by name, not restored with the field silently taken from the run."""
-    import orbax.checkpoint as ocp
 
     cfg, _, _, _ = full_run
     d = tmp_path / "odd"
-    run_mod.run(cfg, d, adapter=toy, checkpoint_every=1, stop_after=3)
-    ckpts = checkpoints.Checkpoints(d / "checkpoints")
-    state = latest_state(d, cfg, toy)
-    meta = ckpts.manager.restore(120, args=ocp.args.Composite(meta=ocp.args.JsonRestore()))["meta"]
-    odd = state.replace(
-        anchor_actor_params=jax.tree.map(lambda x: np.zeros(x.shape + (2,), x.dtype), state.anchor_actor_params)
+    _rewrite_checkpoint_120(
+        d,
+        cfg,
+        toy,
+        lambda state: state.replace(
+            anchor_actor_params=jax.tree.map(lambda x: np.zeros(x.shape + (2,), x.dtype), state.anchor_actor_params)
+        ),
     )
-    import shutil
-
-    shutil.rmtree(d / "checkpoints" / "120")
-    ckpts = checkpoints.Checkpoints(d / "checkpoints")
-    ckpts.manager.save(
-        120, args=ocp.args.Composite(state=ocp.args.StandardSave(odd), meta=ocp.args.JsonSave(meta)), force=True
-    )
-    ckpts.manager.wait_until_finished()
     with pytest.raises(ValueError, match="does not match this run's state"):
         run_mod.run(cfg, d, adapter=toy, resume=True)
 
