@@ -341,8 +341,9 @@ class DemoConfig:
         held = jnp.clip((self.anchor_release - env_steps) / span, 0.0, 1.0).astype(jnp.float32)
         return jnp.minimum(taken, held)
 
-    def teacher_gone(self, env_steps) -> bool:
-        """Whether the teacher has left for good after ``env_steps`` env steps (never without annealing)."""
+    def teacher_gone(self, env_steps):
+        """Whether the teacher has left for good after ``env_steps`` env steps (a Python number or a
+        traced array; never without annealing)."""
         return self.anneal_end is not None and env_steps >= self.anneal_end
 
 

@@ -224,7 +224,7 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
         # The teacher's annealing factor on the cloning weight, at this batch's env steps.
         bc_scale = demo_cfg.teacher_scale(env_steps)
         if not demo_cfg.keep_after_anneal:  # the expert's episodes leave with the teacher
-            buffer = replay.drop_demos(buffer, env_steps >= demo_cfg.anneal_end)
+            buffer = replay.drop_demos(buffer, demo_cfg.teacher_gone(env_steps))
         # Every device must be able to fill its shard of the batch (and of the cloning batch while the
         # cloning term counts and draws from demonstrations only: once the teacher has gone, learning
         # goes on after its last episode has left replay).

@@ -352,9 +352,7 @@ class Networks:
     def policy_with_mode(self, actor_params, episode, idx, noise) -> tuple[jax.Array, jax.Array, jax.Array]:
         """``policy``'s actions and log-probs, and the deterministic action tanh(mean) [B, K, A] of the
         same forward pass (the actor loss needs both: a second pass through a GRU costs as much)."""
-        mean, log_std = self.actor.apply(actor_params, episode["ee_xy"], episode["z_obj"], episode["z_goal"], idx)
-        action, logp = squash(mean, log_std, noise)
-        return action, logp, jnp.tanh(mean)
+        return self.policy_from_features(actor_params, self.actor_features(actor_params, episode), idx, noise)
 
     def actor_features(self, actor_params, episode) -> jax.Array:
         """The actor's features [B, L, F] at every step of the episodes: the part of its forward pass

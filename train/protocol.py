@@ -15,6 +15,7 @@ Runs are independent: `plan` lists one command per run for any scheduler that sh
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import time
 from pathlib import Path
@@ -27,7 +28,7 @@ from train.checkpoints import saved_steps
 from train.comparison_tables import Protocol, load_protocol
 from train.evaluate import EvalSpec, ExpertPolicy, evaluate
 from train.provenance import source_commit
-from train.reproduce import SCHEDULE, evaluate_run, read_cache, run_jobs, train_or_reuse
+from train.reproduce import SCHEDULE, eval_cache_path, evaluate_run, read_cache, run_jobs, train_or_reuse
 from mjx_push.errors import ConfigError
 
 
@@ -41,8 +42,9 @@ class ProtocolRuns:
     log: Callable[[str], None] = print
     config_hook: Callable[[presets.RunConfig], presets.RunConfig] | None = None
 
-    @property
+    @functools.cached_property
     def protocol(self) -> Protocol:
+        """FOLDER/protocol.json, read once (it never changes under a protocol's runs)."""
         return load_protocol(Path(self.folder))
 
     def config(self, agent: str, seed: int) -> presets.RunConfig:
@@ -90,9 +92,9 @@ def run_job(runs: ProtocolRuns, agent: str, seed: int) -> dict:
     test episodes and write its record; returns the record. A finished record is never redone. Any
     error is recorded as a failed run (with the env steps reached and the reason), then raised."""
     path = runs.record_path(agent, seed)
-    if read_cache(path).get("status") == "finished":
+    if (recorded := read_cache(path)).get("status") == "finished":
         runs.log(f"{agent} seed {seed}: finished, recorded in {path}")
-        return read_cache(path)
+        return recorded
     p = runs.protocol
     run_dir = runs.run_dir(agent, seed)
     base = {"agent": agent, "seed": seed, "protocol": p.version, "commit": source_commit() or "unknown"}
@@ -104,7 +106,7 @@ def run_job(runs: ProtocolRuns, agent: str, seed: int) -> dict:
         for shape in p.shapes:
             spec = runs.spec(shape)
             evaluate_run(cfg, run_dir, spec, runs.log, policy=p.actor)
-            cached = read_cache(run_dir / f"eval-{spec.setting}-{spec.shape}-{spec.episodes}.json")
+            cached = read_cache(eval_cache_path(run_dir, spec))
             shapes[shape] = _shape_record(cached["summary"], cached["per_episode"])
             s = cached["summary"]
             runs.log(
@@ -141,9 +143,9 @@ def expert_job(runs: ProtocolRuns) -> dict:
     """The scripted expert on the protocol's test episodes, per shape (under the preset's action box),
     written to FOLDER/expert.json: the reference row."""
     path = Path(runs.folder) / "expert.json"
-    if read_cache(path).get("shapes"):
+    if (recorded := read_cache(path)).get("shapes"):
         runs.log(f"expert: recorded in {path}")
-        return read_cache(path)
+        return recorded
     p = runs.protocol
     cfg = presets.make("vpm", p.preset, 0)
     cfg = runs.config_hook(cfg) if runs.config_hook else cfg

@@ -112,13 +112,18 @@ def policy_fingerprint(path: Path) -> str:
     return hashlib.sha256(Path(path).with_suffix(".msgpack").read_bytes()).hexdigest()
 
 
+def eval_cache_path(folder: Path, spec: EvalSpec) -> Path:
+    """Where an evaluation of `spec` is cached in a run's (or the expert's) folder."""
+    return Path(folder) / f"eval-{spec.setting}-{spec.shape}-{spec.episodes}.json"
+
+
 def evaluate_run(
     cfg: presets.RunConfig, run_dir: Path, spec: EvalSpec, log: Callable[[str], None], policy: str | None = None
 ) -> dict:
     """The summary of `spec` for the run's `policy` (default: the one the selection rule picks,
     `scored_policy`), cached in the run dir as JSON (with the policy's fingerprint and the spec), so an
     interrupted reproduction never repeats a finished evaluation."""
-    path = run_dir / f"eval-{spec.setting}-{spec.shape}-{spec.episodes}.json"
+    path = eval_cache_path(run_dir, spec)
     if policy is None:
         name, step = scored_policy(run_dir)
     else:
@@ -178,7 +183,7 @@ def expert_job(
     summaries = {}
     for shape in shapes:
         spec = EvalSpec(setting=setting, shape=shape, episodes=episodes, batch=min(episodes, 20))
-        path = Path(out) / "expert" / f"eval-{spec.setting}-{spec.shape}-{spec.episodes}.json"
+        path = eval_cache_path(Path(out) / "expert", spec)
         want = {"spec": json.loads(json.dumps(dataclasses.asdict(spec))), "settings": key}
         cached = read_cache(path)
         if {k: cached.get(k) for k in want} == want:
