@@ -48,11 +48,12 @@ from rich.console import Console
 from rich.table import Table
 
 from mjx_push import expert as expert_mod
-from train import atomic, presets
+from mjx_push.train import presets
+from mjx_push.train.runs import atomic
 from mjx_push import encoder as enc
-from train.loop import Runner, make_train
-from train.push_task import PRIV, expert_ground_truth, make_push_adapter
-from train.rollout import REPORT_RADII
+from mjx_push.train.loop import Runner, make_train
+from mjx_push.train.push_task import PRIV, expert_ground_truth, make_push_adapter
+from mjx_push.train.rollout import REPORT_RADII
 
 SHAPES = ("cylinder", "square", "rectangular")
 PHASES = (("travel", 0.03, np.inf), ("finish", 0.01, 0.03), ("hold", 0.0, 0.01))
@@ -262,9 +263,9 @@ def main(argv=None) -> None:
     ap.add_argument("--yaws", type=int, default=16)
     ap.add_argument("--out", type=Path, default=Path("outputs/bc_gap.json"))
     args = ap.parse_args(argv)
-    from export import pretrained
-    from export.policy_file import load_as_policy
-    from train.cli import resolve_policy
+    from mjx_push.export import pretrained
+    from mjx_push.export.policy_file import load_as_policy
+    from mjx_push.cli.options import resolve_policy
 
     console = Console()
     result = {

@@ -31,7 +31,7 @@ def synthetic_episodes(cfg, priv_dim: int, key):
     import jax
     import jax.numpy as jnp
 
-    from train import replay
+    from mjx_push.train import replay
 
     loop = cfg.loop
     spec = replay.episode_spec(
@@ -53,9 +53,9 @@ def measure(agent: str, preset: str, devices: int, batches: int, rollout: bool) 
     import numpy as np
 
     from mjx_push import encoder as enc
-    from train import presets
-    from train.loop import Runner, make_train
-    from train.push_task import PRIV_DIM, make_push_adapter
+    from mjx_push.train import presets
+    from mjx_push.train.loop import Runner, make_train
+    from mjx_push.train.push_task import PRIV_DIM, make_push_adapter
 
     run = presets.make(agent, preset)
     cfg = dataclasses.replace(

@@ -22,8 +22,9 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from train import presets
-from train.evaluate import EvalSpec, ExpertPolicy, evaluate
+from mjx_push.train import presets
+from mjx_push.train.evaluate import ExpertPolicy, evaluate
+from mjx_push.train.episodes import EvalSpec
 
 CASES = (("standard", "all"), ("difficult", "cylinder"), ("difficult", "square"), ("difficult", "rectangular"))
 

@@ -9,7 +9,7 @@ Stages, in order of what users need first, each skipped (and marked so) once the
 1. `env`, first size (the paper preset's 2,048 environments): the preset's environment
    (`mjx_push.batch.PushBatch`) driven by the substep scheduler of the training rollout with uniform
    random actions for `--env-steps` steps: compile seconds, useful substeps/s, env steps/s.
-2. `train`: the preset's learner (VPM) through `train.loop.Runner`: the first batch's seconds
+2. `train`: the preset's learner (VPM) through `mjx_push.train.loop.Runner`: the first batch's seconds
    (compilation included), then batches until `--learn-seconds` have passed: env steps/s and
    gradient updates/s, rollout and update seconds per batch.
 3. `learn`: the same run's actor evaluated (deterministic, the preset's evaluation episodes, the shared
@@ -39,9 +39,9 @@ import numpy as np
 
 from benchmarks.sim_speed import measure_mjx
 from mjx_push import encoder as enc
-from train import presets
-from train.loop import Runner, make_train
-from train.push_task import make_push_adapter
+from mjx_push.train import presets
+from mjx_push.train.loop import Runner, make_train
+from mjx_push.train.push_task import make_push_adapter
 
 TINY = dict(sizes=[4, 8], preset="smoke", learn_seconds=1.0, env_steps=3, budget_s=1800.0)
 FULL = dict(sizes=[2048, 8192, 4096, 1024], preset="paper", learn_seconds=150.0, env_steps=10, budget_s=420.0)

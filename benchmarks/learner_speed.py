@@ -29,9 +29,9 @@ def measure(agent: str, preset: str, at: int, repeats: int) -> dict:
 
     from benchmarks.data_parallel import synthetic_episodes
     from mjx_push import encoder as enc
-    from train import presets, replay
-    from train.loop import Runner, make_train
-    from train.push_task import PRIV_DIM, make_push_adapter
+    from mjx_push.train import presets, replay
+    from mjx_push.train.loop import Runner, make_train
+    from mjx_push.train.push_task import PRIV_DIM, make_push_adapter
 
     run = presets.make(agent, preset)
     cfg = run.train

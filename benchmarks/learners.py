@@ -40,7 +40,7 @@ from rich.console import Console
 from rich.table import Table
 
 from benchmarks import learning_ladder as ladder
-from train import atomic
+from mjx_push.train.runs import atomic
 
 LEARNERS = ("bc", "sacbc", "anneal", "anchor")
 

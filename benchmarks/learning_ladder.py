@@ -3,7 +3,7 @@
     python -m benchmarks.learning_ladder [--rungs vpm-5cm egru-1cm] [--seeds 0 1] [--out outputs/ladder]
         [--set train.sac.bc_weight=0 ...] [--tag NAME] [--eval-episodes 100]
 
-Every rung is a preset plus overrides (dotted paths into `train.presets.RunConfig`); `--set` adds
+Every rung is a preset plus overrides (dotted paths into `mjx_push.train.presets.RunConfig`); `--set` adds
 overrides to every rung of this invocation (an ablation) and `--tag` names it in the run
 directories and the JSON. Each run trains in `OUT/<rung>[-<tag>]-s<seed>/` (resumable: rerunning the
 same command continues interrupted runs and reuses finished ones), then its best and final actors
@@ -31,10 +31,11 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from train import presets
-from train import run as run_mod
-from train import policies
-from train.evaluate import EvalSpec, evaluate
+from mjx_push.train import presets
+from mjx_push.train.runs import run as run_mod
+from mjx_push.train.runs import policies
+from mjx_push.train.evaluate import evaluate
+from mjx_push.train.episodes import EvalSpec
 
 # name -> (agent, preset, overrides). 5 cm rungs train at 5 cm (the original vision-proprioception
 # model's radius: HER's rewards and the success rate), the others at the paper's 1 cm; every rung

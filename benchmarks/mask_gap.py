@@ -37,7 +37,7 @@ def gap(rendered: np.ndarray, analytic: np.ndarray) -> dict:
 
 def measure(shape: str, poses: int, seed: int) -> dict:
     from mjx_push import mask_geometry
-    from export.cpu_env import CpuPushEnv, sample_params
+    from mjx_push.export.cpu_env import CpuPushEnv, sample_params
     from mjx_push import objects
 
     env = CpuPushEnv(geom_type=shape, mask_source="render")

@@ -5,9 +5,9 @@
                                        [--iterations N] [--ls-iterations N]
                                        [--out outputs/bench_replay_parity.json]
 
-MJX runs the evaluation protocol's episodes (`train.evaluate`, the given seed) closed-loop with the
+MJX runs the evaluation protocol's episodes (`mjx_push.train.evaluate`, the given seed) closed-loop with the
 policy (default: the scripted expert, which pushes in every episode) and records every step's joint
-positions and actions. CPU MuJoCo (`export.cpu_env.CpuPushEnv`: C `mj_step`, float64, the controller law
+positions and actions. CPU MuJoCo (`mjx_push.export.cpu_env.CpuPushEnv`: C `mj_step`, float64, the controller law
 under NumPy) then starts each episode from the same object and replays the same actions
 open-loop. No policy and no mask enters the comparison: what differs is the two engines (collision
 code, solver, float32 against float64) and the two controller implementations.
@@ -75,7 +75,7 @@ def replay(cfg, rec: dict) -> dict:
     import mujoco
     import numpy as np
 
-    from export.cpu_env import CpuPushEnv, quat_yaw
+    from mjx_push.export.cpu_env import CpuPushEnv, quat_yaw
 
     env = CpuPushEnv(cfg.env, mask_source="analytic")
     env.reset(params=rec["params"], geom_type=rec["geom_type"])
@@ -123,7 +123,7 @@ def first_contact(cfg, rec: dict, forward) -> dict | None:
     import numpy as np
     from mujoco import mjx
 
-    from export.cpu_env import CpuPushEnv, decode_substeps, flange_target
+    from mjx_push.export.cpu_env import CpuPushEnv, decode_substeps, flange_target
 
     env = CpuPushEnv(cfg.env, mask_source="analytic")
     env.reset(params=rec["params"], geom_type=rec["geom_type"])
@@ -236,16 +236,17 @@ def main(argv=None) -> None:
     from rich.console import Console
     from rich.table import Table
 
-    from train import presets
-    from train.evaluate import EvalSpec, ExpertPolicy, evaluate
+    from mjx_push.train import presets
+    from mjx_push.train.evaluate import ExpertPolicy, evaluate
+    from mjx_push.train.episodes import EvalSpec
 
     console = Console()
     if a.policy == "expert":
         cfg = presets.make("vpm", a.preset, 0)
         policy = ExpertPolicy(cfg)
     else:
-        from export import pretrained
-        from export.policy_file import load_as_policy
+        from mjx_push.export import pretrained
+        from mjx_push.export.policy_file import load_as_policy
 
         policy = load_as_policy(pretrained.resolve(a.policy))
         cfg = policy.config

@@ -25,10 +25,10 @@ from rich.console import Console
 from rich.table import Table
 
 from mjx_push import encoder as enc
-from train import presets
-from train.config import AGENT_KINDS
-from train.loop import make_train
-from train.push_task import make_push_adapter
+from mjx_push.train import presets
+from mjx_push.train.config import AGENT_KINDS
+from mjx_push.train.loop import make_train
+from mjx_push.train.push_task import make_push_adapter
 
 
 def measure(num_envs: int, chunk: int, repeats: int, agent: str) -> list[dict]:

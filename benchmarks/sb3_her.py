@@ -30,8 +30,8 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-import export  # noqa: F401  (registers MjxPush-v0)
-from export.gym_env import MjxPushGymEnv
+import mjx_push.export  # noqa: F401  (registers MjxPush-v0)
+from mjx_push.export.gym_env import MjxPushGymEnv
 from mjx_push.env import EnvConfig
 
 
@@ -75,8 +75,8 @@ def main() -> None:
 
     config, jax_curve = EnvConfig(), None
     if args.jax_run is not None:
-        from train.report import read_training
-        from train.presets import load_config
+        from mjx_push.train.comparison.report import read_training
+        from mjx_push.train.presets import load_config
 
         config = load_config(args.jax_run / "config.json").env  # the same task as the JAX run
         jax_curve = read_training(args.jax_run)

@@ -6,9 +6,9 @@
                                     [--obs-noise N] [--out outputs/bench_sim_parity.json]
 
 POLICY is an exported .npz or ``pretrained:NAME``. Both simulators run the same episodes: the objects,
-starts and goals of the evaluation protocol (`train.evaluate`, the given seed) are handed to the CPU
+starts and goals of the evaluation protocol (`mjx_push.train.evaluate`, the given seed) are handed to the CPU
 environment as well. In MJX the policy acts through JAX on analytic masks; on CPU through
-`export.numpy_policy` on each mask source of ``--masks`` (``render``: the under-table camera rendered
+`mjx_push.export.numpy_policy` on each mask source of ``--masks`` (``render``: the under-table camera rendered
 by MuJoCo's OpenGL renderer and thresholded, as the real camera's pipeline; ``analytic``: the
 projection MJX trains with).
 
@@ -105,9 +105,9 @@ def _stats(x) -> dict:
 
 def agreement(rows: list[dict]) -> dict:
     """Summary over episodes, each row {"mjx_success", "cpu_success", "mjx_final", "cpu_final",
-    "parting"} (final distances in m): `export.metrics.agreement` (success in each simulator,
+    "parting"} (final distances in m): `mjx_push.export.metrics.agreement` (success in each simulator,
     per-episode agreement, the correlation of final distances) and the parting steps."""
-    from export.metrics import agreement as outcome_agreement
+    from mjx_push.export.metrics import agreement as outcome_agreement
 
     parts = {k: 0 for k in (*ORDER, "neither")}
     for r in rows:
@@ -121,7 +121,7 @@ def agreement(rows: list[dict]) -> dict:
 
 def mjx_run(policy, env_cfg, spec):
     """The protocol's episodes in MJX, each with its recorded joint positions and actions."""
-    from train.evaluate import evaluator_for
+    from mjx_push.train.evaluate import evaluator_for
 
     ev = evaluator_for(env_cfg, policy.config.train.agent, spec.batch)
     out = ev.evaluate(policy, spec)
@@ -148,7 +148,7 @@ def mjx_trajectory(rec: dict, sim, numpy_policy) -> dict:
     """Per-step latent/flange/object of a recorded MJX episode, read with CPU MuJoCo's kinematics and
     the NumPy analytic masks (the same projection as MJX's)."""
     from mjx_push import mask_geometry
-    from export.cpu_env import quat_yaw
+    from mjx_push.export.cpu_env import quat_yaw
 
     a, flange = sim.ids.object_qpos, flange_xy(sim)
     qpos = np.asarray(rec["qpos"], np.float64)  # [T+1, nq]
@@ -171,7 +171,7 @@ def cpu_run(env, numpy_policy, rec: dict, seed: int, T: int) -> tuple[dict, dict
     """One episode on CPU MuJoCo from the recorded episode's object: (trajectory, final info, latents of
     the analytic masks of the same states, when the env renders)."""
     from mjx_push import mask_geometry
-    from export.cpu_env import quat_yaw
+    from mjx_push.export.cpu_env import quat_yaw
 
     obs = env.reset(seed=seed, params=rec["params"], geom_type=rec["geom_type"])
     numpy_policy.reset()
@@ -199,11 +199,11 @@ def cpu_run(env, numpy_policy, rec: dict, seed: int, T: int) -> tuple[dict, dict
 
 
 def compare(policy_ref: str, args) -> dict:
-    from export.cpu_env import CpuPushEnv
-    from export.numpy_policy import NumpyPolicy
-    from export.policy_file import load_as_policy
-    from export.pretrained import resolve
-    from train.evaluate import EvalSpec
+    from mjx_push.export.cpu_env import CpuPushEnv
+    from mjx_push.export.numpy_policy import NumpyPolicy
+    from mjx_push.export.policy_file import load_as_policy
+    from mjx_push.export.pretrained import resolve
+    from mjx_push.train.episodes import EvalSpec
 
     path = resolve(policy_ref)
     policy = load_as_policy(path)
@@ -318,9 +318,9 @@ def print_tables(results: list[dict]) -> None:
 
 def floor(a: dict, b: dict) -> list[dict]:
     """Each simulator against itself: for every policy and mask source in both runs `a` and `b` (this
-    benchmark's JSONs over the same episodes), `export.metrics.agreement` of one run's outcomes with
+    benchmark's JSONs over the same episodes), `mjx_push.export.metrics.agreement` of one run's outcomes with
     the other's, per simulator ("mjx" once, from the analytic entry; "cpu" per mask source)."""
-    from export.metrics import agreement as outcome_agreement
+    from mjx_push.export.metrics import agreement as outcome_agreement
 
     rows = []
     for ra, rb in zip(a["results"], b["results"]):

@@ -6,7 +6,7 @@
 Both simulators run the same `--num-envs` objects (drawn once by the MJX batch) and the same
 `--steps` uniform random actions per environment, a_s included, under the preset's environment:
 
-- CPU MuJoCo: the project's CPU environment (`export.cpu_env.CpuPushEnv`, C `mj_step` with the NumPy
+- CPU MuJoCo: the project's CPU environment (`mjx_push.export.cpu_env.CpuPushEnv`, C `mj_step` with the NumPy
   controller at every substep, analytic masks), the environments dealt out to `--cores` worker
   processes (default: every core this process may use), timed from a start signal to the last worker's
   end; the per-core rate is the same work in one process.
@@ -37,12 +37,12 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from export.cpu_env import CpuPushEnv
-from export.cpu_env import decode_substeps as cpu_decode_substeps
+from mjx_push.export.cpu_env import CpuPushEnv
+from mjx_push.export.cpu_env import decode_substeps as cpu_decode_substeps
 from mjx_push.batch import PushBatch
 from mjx_push.env import decode_substeps
 from mjx_push.xla import cpu_device_count
-from train import presets
+from mjx_push.train import presets
 
 
 def _episode_inputs(batch: PushBatch, key: jax.Array, steps: int):

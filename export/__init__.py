@@ -39,7 +39,10 @@ def register_envs() -> None:
     call order and its 50-step time limit itself."""
     if ENV_ID not in _gymnasium.registry:
         _gymnasium.register(
-            id=ENV_ID, entry_point="export.gym_env:MjxPushGymEnv", disable_env_checker=True, order_enforce=False
+            id=ENV_ID,
+            entry_point="mjx_push.export.gym_env:MjxPushGymEnv",
+            disable_env_checker=True,
+            order_enforce=False,
         )
 
 

@@ -18,7 +18,7 @@ Stages, in order (each configured by a field of `MaskPipeline`):
 5. resize to 64x64: "area" sets an output pixel when at least `area_threshold` of its footprint is object
    (any scale factor, integer or not); "nearest" samples the source pixel under the output pixel's centre.
 
-The default thresholds are the simulator's colour filter (`export.cpu_env.render_filter`: the blue
+The default thresholds are the simulator's colour filter (`mjx_push.export.cpu_env.render_filter`: the blue
 emissive object; in HSV a blue hue band 210..270 degrees), with no crop, flip or morphology, so a 64x64
 render of the "under_table" camera maps to the simulator's mask unchanged. Pure NumPy (no OpenCV, no SciPy).
 """

@@ -1,8 +1,8 @@
 """The pushing task on CPU MuJoCo (`mujoco.MjData` + `mujoco.mj_step`): one environment, no JAX in the loop.
 
 It is the MJX `mjx_push.env.PushEnv` re-run in C MuJoCo, for evaluation with a real rendered camera, for
-Gymnasium users (`export.gym_env`) and as the simulated robot behind the deployment loop
-(`export.deploy`). Everything that defines the task is shared or ported line for line:
+Gymnasium users (`mjx_push.export.gym_env`) and as the simulated robot behind the deployment loop
+(`mjx_push.export.deploy`). Everything that defines the task is shared or ported line for line:
 
 - the scene: `mjx_push.scene.build_model`, with the object's size, mass, inertia and friction written into
   the `MjModel` as `mjx_push.objects.apply` does for MJX, then `mujoco.mj_setConst` (which derives the
@@ -12,8 +12,8 @@ Gymnasium users (`export.gym_env`) and as the simulated robot behind the deploym
 - the step: action sanitising, workspace clip and a_s -> substeps decoding (`mjx_push.task_rules`, the
   functions `PushEnv.begin_step` runs with JAX; decoded in float32, like the MJX environment, so the same
   a_s gives the same count); the controller (`mjx_push.control_law` on MjData's kinematics,
-  `export.controller_np`) at every 1 ms substep or held per step; the correction counters
-  (`export.corrections_np`, the rule of `mjx_push.task_rules`) at every substep; the validity check of
+  `mjx_push.export.controller_np`) at every 1 ms substep or held per step; the correction counters
+  (`mjx_push.export.corrections_np`, the rule of `mjx_push.task_rules`) at every substep; the validity check of
   `PushEnv._valid`, an invalid state being replaced by the episode's initial state. One addition: C
   MuJoCo silently resets `MjData` to the model's default pose when qpos, qvel or qacc become non-finite
   or huge (MJX lets the NaN through), so a step during which MuJoCo raised one of those warnings is
@@ -21,6 +21,15 @@ Gymnasium users (`export.gym_env`) and as the simulated robot behind the deploym
 - substep ordering: the controller reads the kinematics that the previous `mj_step` left in `MjData`
   (mj_step computes them before integrating), exactly as the MJX loop reads `mjx.step`'s output; the
   flange xy of the observation and of `info["ee_xy_true"]` comes from the same place (one substep old).
+
+Perturbations of a real cell (`config.perturb`, off by default; `mjx_push.perturb`, docs/robustness.md)
+run here as in the MJX environment, from the same functions: the record drawn at reset scales the
+object's mass and friction and moves the rod's geometry and the "under_table" camera in the `MjModel`
+(so rendered masks see the camera offset too); each observation passes the masks through the real
+pipeline's errors and adds flange noise; each step runs the previous target for the latency's first
+substeps and the servo's gain and lag at every substep. With `controller.hold_per_step` the late
+substeps hold the previous target's law evaluated at the step's start (MJX holds the previous
+step's command). Their random draws are the environment's own (NumPy), not MJX's.
 
 Masks (`mask_source`):
 - "render": the "under_table" camera rendered by `mujoco.Renderer` at 64x64, colour-filtered with
@@ -46,9 +55,9 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from export import controller_np as ctl
-from export import corrections_np as corr
-from mjx_push import mask_geometry, scene, task_rules
+from mjx_push.export import controller_np as ctl
+from mjx_push.export import corrections_np as corr
+from mjx_push import mask_geometry, perturb, scene, task_rules
 from mjx_push.config import EnvConfig, ObjectConfig, ObjectParams
 from mjx_push.config import half_height as _half_height
 
@@ -154,6 +163,33 @@ class _ShapeSim:
     data: mujoco.MjData
     scratch: mujoco.MjData  # for renders at other poses (goal) without touching the simulation
     ids: scene.SceneIds
+    nominal: dict  # the rod's and the camera's fields as built (perturbations are written from them)
+
+
+def _nominal(m: mujoco.MjModel, ids: scene.SceneIds) -> dict:
+    g, cam = ids.rod_geom, mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, "under_table")
+    rod = {k: getattr(m, k)[g].copy() for k in ("geom_size", "geom_pos", "geom_rbound", "geom_aabb")}
+    return {"rod": rod, "camera": cam, "cam_pos": m.cam_pos[cam].copy(), "cam_quat": m.cam_quat[cam].copy()}
+
+
+def apply_perturbation(m: mujoco.MjModel, sim: _ShapeSim, record: dict) -> None:
+    """Write an episode's rod errors and camera offset (`mjx_push.perturb`) into `m`, from the nominal
+    values (so episodes never accumulate them). The camera moves by (dx, dy) and turns by dyaw about
+    the world z axis, its optical axis: the rendered masks then show what `perturb.camera_view` gives
+    the analytic ones."""
+    g, nom = sim.ids.rod_geom, sim.nominal
+    r = nom["rod"]
+    size, pos, rbound, aabb = perturb.rod_geometry(
+        r["geom_size"], r["geom_pos"], r["geom_rbound"], r["geom_aabb"], record["rod"]
+    )
+    m.geom_size[g], m.geom_pos[g], m.geom_rbound[g], m.geom_aabb[g] = size, pos, rbound, aabb
+    cam = nom["camera"]
+    dx, dy, dyaw = (float(v) for v in record["camera"])
+    m.cam_pos[cam] = nom["cam_pos"] + np.array([dx, dy, 0.0])
+    turn = np.array([math.cos(dyaw / 2), 0.0, 0.0, math.sin(dyaw / 2)])
+    quat = np.empty(4)
+    mujoco.mju_mulQuat(quat, turn, nom["cam_quat"])
+    m.cam_quat[cam] = quat
 
 
 class CpuPushEnv:
@@ -189,12 +225,25 @@ class CpuPushEnv:
         self.geom_type: str | None = None  # set by reset
         self.params: ObjectParams | None = None
         self._warned_clip = False
+        self.perturbed = config.perturb.active()  # docs/robustness.md; nothing is drawn without them
+        self.perturbation: dict | None = None  # this episode's record (mjx_push.perturb.draw_episode)
 
     # --- public API ----------------------------------------------------------------------------------
-    def reset(self, seed: int | None = None, params: ObjectParams | None = None, geom_type: str | None = None) -> dict:
+    def reset(
+        self,
+        seed: int | None = None,
+        params: ObjectParams | None = None,
+        geom_type: str | None = None,
+        perturbation: dict | None = None,
+    ) -> dict:
         """Start an episode. `seed` reseeds the environment's generator (shape draw, object draw,
         observation noise); `params` (an `ObjectParams`, JAX or NumPy leaves) fixes the object; `geom_type`
-        its shape (defaults to the fixed shape, else drawn)."""
+        its shape (defaults to the fixed shape, else drawn). With perturbations (`config.perturb`) the
+        episode's record is drawn, or `perturbation` (a `mjx_push.perturb.draw_episode` record) used;
+        their draws come from a generator spawned off the environment's, whose own stream (and so the
+        observation noise) they leave as it was."""
+        if perturbation is not None and not self.perturbed:
+            raise ConfigError("a perturbation record needs an environment with env.perturb set")
         if seed is not None:
             self.np_random = np.random.default_rng(seed)
         shapes = self.config.objects.shapes()
@@ -210,8 +259,15 @@ class CpuPushEnv:
         else:
             params = params_to_numpy(params)
         sim = self._sim(geom_type)
-        self.geom_type, self.params, self._s = geom_type, params, sim
         m, d, ids = sim.model, sim.data, sim.ids
+        if self.perturbed:
+            self._perturb_rng = self.np_random.spawn(1)[0]
+            if perturbation is None:
+                perturbation = perturb.draw_episode(self.config.perturb, self._perturb_rng.random(perturb.N_UNIFORMS))
+            self.perturbation = {k: np.asarray(v, np.float64) for k, v in perturbation.items()}
+            params = perturb.scale_object(params, self.perturbation)
+            apply_perturbation(m, sim, self.perturbation)
+        self.geom_type, self.params, self._s = geom_type, params, sim
         apply_params(m, d, params, ids, geom_type)
         mujoco.mj_resetData(m, d)
         a = ids.object_qpos
@@ -219,8 +275,9 @@ class CpuPushEnv:
         d.qpos[a : a + 7] = self._object_qpos(params.start)
         mujoco.mj_forward(m, d)
         self._qpos0 = d.qpos.copy()
-        self.goal_mask = self._mask(self._object_qpos(params.goal), d.qpos)
+        self.goal_mask = self._camera_mask(self._mask(self._object_qpos(params.goal), d.qpos))
         self.target = self.home_flange.copy()
+        self._prev_target, self._shown_mask = self.target, None
         self.step_count = 0
         self.corrections = corr.Corrections()
         self.episode_invalid = False
@@ -262,7 +319,15 @@ class CpuPushEnv:
         )
         n = decode_substeps(action[2], cfg.substeps)
         unstable0 = self._unstable_count()
-        max_tilt, max_herr = self.run_substeps(n)
+        if "latency" in self.perturbed:  # the previous command runs on for the step's first substeps
+            late = min(n, int(self.perturbation["latency"]))
+            new, self.target = self.target, self._prev_target
+            tilt0, herr0 = self.run_substeps(late)
+            self.target = self._prev_target = new
+            max_tilt, max_herr = self.run_substeps(n - late)
+            max_tilt, max_herr = max(tilt0, max_tilt), max(herr0, max_herr)
+        else:
+            max_tilt, max_herr = self.run_substeps(n)
         # C MuJoCo resets MjData to the model's default pose by itself when qpos, qvel or qacc go bad
         # (with a warning): that is an invalid state too, though everything is finite again.
         invalid = self._unstable_count() > unstable0 or not self._valid()
@@ -281,7 +346,7 @@ class CpuPushEnv:
     def run_substeps(self, n: int) -> tuple[float, float]:
         """Run `n` 1 ms substeps towards `self.target` with the controller, counting corrections. Returns
         the largest rod tilt (rad) and flange height error (m) seen. Used by `step` and by the simulated
-        robot of `export.deploy`."""
+        robot of `mjx_push.export.deploy`."""
         cfg = self.config
         m, d, ids = self._s.model, self._s.data, self._s.ids
         ccfg = cfg.controller
@@ -291,8 +356,10 @@ class CpuPushEnv:
         a = ids.object_qpos
         c = self.corrections
         max_tilt = max_herr = 0.0
+        servo = bool(self.perturbed & {"velocity_gain", "velocity_lag"})
         for _ in range(int(n)):
-            d.ctrl[:7] = held if held is not None else ctl.joint_velocity(m, d, self.target, ids, ccfg)
+            dq = held if held is not None else ctl.joint_velocity(m, d, self.target, ids, ccfg)
+            d.ctrl[:7] = perturb.actuate(dq, d.ctrl[:7], self.perturbation) if servo else dq
             mujoco.mj_step(m, d)
             c = corr.update(c, math.hypot(d.qpos[a] - goal_xy[0], d.qpos[a + 1] - goal_xy[1]), cfg.success_tau)
             p, z = ctl.flange_pose(d, ids)
@@ -316,7 +383,7 @@ class CpuPushEnv:
             "ee_xy_true": d.site_xpos[self._s.ids.flange_site][:2].copy(),
             "target": self.target.copy(),
             "distance": dist,
-            "success": dist < self.config.success_tau,
+            "success": task_rules.reached(dist, self.config.success_tau),
             "corrections": self.corrections,
             "substeps": self._last["substeps"],
             "max_tilt": self._last["max_tilt"],
@@ -340,7 +407,7 @@ class CpuPushEnv:
 
     def render_rgb(self, camera: str = "top", size: tuple[int, int] = MAX_RENDER_SIZE) -> np.ndarray:
         """RGB frame (H, W, 3) uint8 of the current state from `camera` ("top" or "under_table"), for videos
-        and for the simulated camera of `export.deploy`. `size` = (height, width) <= (480, 640)."""
+        and for the simulated camera of `mjx_push.export.deploy`. `size` = (height, width) <= (480, 640)."""
         if camera not in CAMERAS:
             raise ConfigError(f"camera must be one of {CAMERAS}, got {camera!r}")
         h, w = (int(v) for v in size)
@@ -363,7 +430,8 @@ class CpuPushEnv:
     def _sim(self, geom_type: str) -> _ShapeSim:
         if geom_type not in self._sims:
             m = scene.build_model(geom_type, self.config.solver)
-            self._sims[geom_type] = _ShapeSim(m, mujoco.MjData(m), mujoco.MjData(m), scene.scene_ids(m))
+            ids = scene.scene_ids(m)
+            self._sims[geom_type] = _ShapeSim(m, mujoco.MjData(m), mujoco.MjData(m), ids, _nominal(m, ids))
         return self._sims[geom_type]
 
     def _resolve_mask_source(self, source: str, probe_shape: str) -> str:
@@ -396,12 +464,14 @@ class CpuPushEnv:
         return np.concatenate([pose[:2], [z], yaw_quat(float(pose[2]))])
 
     def _mask(self, obj_qpos: np.ndarray, qpos: np.ndarray) -> np.ndarray:
-        """Mask of the object at `obj_qpos` (7,), the rest of the scene at `qpos`."""
+        """Mask of the object at `obj_qpos` (7,), the rest of the scene at `qpos` (seen by the episode's
+        displaced camera, if any; rendered: the model's camera is moved at reset)."""
         if self.mask_source_used == "analytic":
             # Like the MJX environment: upright object at the pose's xy, yaw and centre height.
-            return mask_geometry.object_mask(
-                self.geom_type, self.params.size, obj_qpos[:2], quat_yaw(obj_qpos[3:7]), obj_qpos[2]
-            )
+            xy, yaw = obj_qpos[:2], quat_yaw(obj_qpos[3:7])
+            if self.perturbed & {"camera_shift", "camera_yaw"}:
+                xy, yaw = perturb.camera_view(xy, yaw, self.perturbation["camera"])
+            return mask_geometry.object_mask(self.geom_type, self.params.size, xy, yaw, obj_qpos[2])
         a = self._s.ids.object_qpos
         q = np.array(qpos, copy=True)
         q[a : a + 7] = obj_qpos
@@ -419,11 +489,28 @@ class CpuPushEnv:
         r.update_scene(v, camera=camera)
         return r.render().copy()
 
+    def _camera_mask(self, mask: np.ndarray) -> np.ndarray:
+        """The real pipeline's errors on a mask (edge, flips, opening and closing), when configured."""
+        cfg = self.config.perturb
+        k_max, r_max = math.ceil(abs(cfg.mask_edge)), cfg.mask_open_close
+        if not (k_max or r_max or "mask_flip" in self.perturbed):
+            return mask
+        u_edge = self._perturb_rng.random()
+        u_pix = self._perturb_rng.random(mask.shape) if "mask_flip" in self.perturbed else None
+        return perturb.camera_mask(mask, self.perturbation, u_edge, u_pix, k_max, r_max)
+
     def _observation(self) -> dict:
         d, ids = self._s.data, self._s.ids
         ee = d.site_xpos[ids.flange_site][:2].copy()
         noise = self.config.obs_noise * self.np_random.standard_normal(2)
-        return {"ee_xy": ee + noise, "object_mask": self.object_mask(), "goal_mask": self.goal_mask.copy()}
+        if "flange_noise" in self.perturbed:
+            noise = noise + self.perturbation["flange_noise"] * self._perturb_rng.standard_normal(2)
+        mask = self._camera_mask(self.object_mask())
+        if self.perturbed & {"frame_repeat", "frame_empty"}:
+            if self._shown_mask is not None:  # the reset's frame is never missed
+                mask = perturb.missed_frame(mask, self._shown_mask, self.perturbation, self._perturb_rng.random())
+            self._shown_mask = mask
+        return {"ee_xy": ee + noise, "object_mask": mask, "goal_mask": self.goal_mask.copy()}
 
     def _valid(self) -> bool:
         """As `PushEnv._valid`: finite state, object centre over the table footprint, within its height band."""

@@ -1,7 +1,7 @@
 """Deployment loop: a trained policy pushes an object with a robot behind a small interface.
 
-    from export.camera import MaskPipeline
-    from export.deploy import run_episode
+    from mjx_push.export.camera import MaskPipeline
+    from mjx_push.export.deploy import run_episode
     result = run_episode(policy, robot, camera, MaskPipeline(...), goal_mask)
 
 Per step, exactly as the simulator: camera frame -> `MaskPipeline.to_mask` -> `policy.act(object_mask,
@@ -34,8 +34,8 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from export.camera import MaskPipeline
-from export.cpu_env import CpuPushEnv
+from mjx_push.export.camera import MaskPipeline
+from mjx_push.export.cpu_env import CpuPushEnv
 from mjx_push import scene
 from mjx_push.config import EnvConfig
 from mjx_push.errors import ConfigError
@@ -119,7 +119,7 @@ def run_episode(
     (T+1, 64, 64), "actions" (T, 3) as (a_x, a_y, a_s_substeps) after sanitising, "targets" (T, 3),
     "goal_mask", "bad_actions" and "steps" (T, the number of steps run)."""
     if not isinstance(pipeline, MaskPipeline):
-        raise ConfigError(f"pipeline must be an export.camera.MaskPipeline, got {type(pipeline).__name__}")
+        raise ConfigError(f"pipeline must be an mjx_push.export.camera.MaskPipeline, got {type(pipeline).__name__}")
     goal_mask = _check_mask("goal_mask", goal_mask)
     if not isinstance(steps, (int, np.integer)) or steps < 1:
         raise ConfigError(f"steps must be an integer >= 1, got {steps!r}")

@@ -1,6 +1,6 @@
-"""Gymnasium goal environment over `export.cpu_env.CpuPushEnv`, registered as "MjxPush-v0".
+"""Gymnasium goal environment over `mjx_push.export.cpu_env.CpuPushEnv`, registered as "MjxPush-v0".
 
-    import export, gymnasium                # importing export registers the id
+    import mjx_push.export, gymnasium                # importing export registers the id
     env = gymnasium.make("MjxPush-v0")      # or gymnasium.make("export:MjxPush-v0") without the import
 
 Goal representation (the goal-environment convention of Gymnasium-Robotics and Stable-Baselines3):
@@ -32,7 +32,7 @@ Masks come from the rendered under-table camera by default (`mask_source="render
 offscreen renderer: `import export` selects EGL on a Linux machine without a display); "analytic" uses
 the projection MJX trains with; "auto" renders when it can and warns when it cannot.
 
-`gymnasium.make` returns the environment itself (see `export.register_envs`).
+`gymnasium.make` returns the environment itself (see `mjx_push.export.register_envs`).
 """
 
 from __future__ import annotations
@@ -44,8 +44,8 @@ import gymnasium
 import numpy as np
 from gymnasium import spaces
 
-from export import ENV_ID
-from export.cpu_env import CAMERAS, MAX_RENDER_SIZE, CpuPushEnv
+from mjx_push.export import ENV_ID
+from mjx_push.export.cpu_env import CAMERAS, MAX_RENDER_SIZE, CpuPushEnv
 from mjx_push import scene
 from mjx_push.config import EnvConfig
 from mjx_push.errors import ConfigError

@@ -1,5 +1,5 @@
 """The evaluation protocol's metrics (docs/task.md section 7) over a list of CPU MuJoCo episode records,
-in the form `mjx-push eval` reports them (`train.evaluate.summarize`): success, reward, overshoot and
+in the form `mjx-push eval` reports them (`mjx_push.train.evaluate.summarize`): success, reward, overshoot and
 distance corrections, and the object-goal distance at reset and at the end, each {"mean", "sem", "n"}
 with SEM = sample standard deviation (ddof=1) / sqrt(n), 0 for one episode."""
 
@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 
-from train.evaluate import DISTANCE_METRICS, METRICS, summarize as summarize_arrays
+from mjx_push.train.evaluate import DISTANCE_METRICS, METRICS, summarize as summarize_arrays
 from mjx_push.errors import ConfigError
 
 

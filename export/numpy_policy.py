@@ -4,8 +4,8 @@
     policy.reset()                                         # at the start of every episode
     a_x, a_y, substeps = policy.act(object_mask, goal_mask, ee_xy)
 
-It follows `export.deploy.Policy`, so `export.deploy.run_episode` drives it on a robot or on `CpuPushEnv`.
-Per step, as the trained JAX actor's online step (`train.networks.Networks.act`, deterministic):
+It follows `mjx_push.export.deploy.Policy`, so `mjx_push.export.deploy.run_episode` drives it on a robot or on `CpuPushEnv`.
+Per step, as the trained JAX actor's online step (`mjx_push.train.networks.Networks.act`, deterministic):
 z_obj = encoder mean of the object mask; z_goal = encoder mean of the goal mask, computed once per episode
 (recomputed if the goal mask changes; a recurrent agent's memory is not rewound then, so start a new
 episode for a new goal); the extractor's memory is carried step to step (VPM: none; Stacked: the last
@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
-from export.policy_file import PolicyFile, load_npz
+from mjx_push.export.policy_file import PolicyFile, load_npz
 from mjx_push.errors import ConfigError
 from mjx_push.task_rules import substep_count as decode_substeps  # a_s -> substeps, as mjx_push.env's (float32)
 
@@ -50,7 +50,7 @@ def _conv_valid(x: np.ndarray, weight: np.ndarray, bias: np.ndarray, k: int, str
 
 
 class NumpyPolicy:
-    """A trained actor and its mask encoder, from an exported `.npz` (see `export.policy_file`)."""
+    """A trained actor and its mask encoder, from an exported `.npz` (see `mjx_push.export.policy_file`)."""
 
     def __init__(self, policy_file: PolicyFile, use_blas: bool = False):
         self.file = policy_file
@@ -94,11 +94,11 @@ class NumpyPolicy:
 
     @classmethod
     def from_policy(cls, policy, provenance: dict | None = None) -> NumpyPolicy:
-        """The NumPy port of a `train.policies.Policy`, through the file `mjx-push export` writes (so it
+        """The NumPy port of a `mjx_push.train.runs.policies.Policy`, through the file `mjx-push export` writes (so it
         is exactly what a user would deploy)."""
         import tempfile
 
-        from export.policy_file import export_policy
+        from mjx_push.export.policy_file import export_policy
 
         with tempfile.TemporaryDirectory() as tmp:
             path = Path(tmp) / "policy.npz"

@@ -1,4 +1,4 @@
-"""A sketch of `export.deploy.Robot` on a real Franka Panda with panda-py (not installed by mjx-push, and
+"""A sketch of `mjx_push.export.deploy.Robot` on a real Franka Panda with panda-py (not installed by mjx-push, and
 never run here: check the API names against your panda-py version before trusting it with an arm).
 
 It runs the simulator's own task-space velocity law (`mjx_push.control_law.law`, with NumPy) at 1 kHz
@@ -7,7 +7,7 @@ simulated one does. panda-py is imported only when a robot is made, so this modu
 checks that it still fits the `Robot` interface) without it.
 
     robot = PandaPyRobot("172.16.0.2")
-    result = export.deploy.run_episode(policy, robot, camera, pipeline, goal_mask)
+    result = mjx_push.export.deploy.run_episode(policy, robot, camera, pipeline, goal_mask)
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """The exported policy file: one `.npz` of float32 weights plus a JSON metadata record inside it.
 
-    export_policy(train.policies.load_policy("runs/egru/best_policy"), Path("egru.npz"))   # needs jax (training side)
+    export_policy(mjx_push.train.runs.policies.load_policy("runs/egru/best_policy"), Path("egru.npz"))   # needs jax (training side)
     pf = load_npz("egru.npz")                                                       # NumPy only
 
 Arrays, named by their flax parameter paths (kernels are flax layouts: Dense (in, out), Conv HWIO):
@@ -18,12 +18,12 @@ Arrays, named by their flax parameter paths (kernels are flax layouts: Dense (in
 
 A file may leave the encoder out and reference the one the package ships instead (``export_policy(...,
 encoder="package")``; metadata ``encoder.weights`` = {"source": "package", "sha256": ...}): the shipped
-policies (`export.pretrained`) do, since the encoder is nearly all of a file's 4 MB. Loading such a file
+policies (`mjx_push.export.pretrained`) do, since the encoder is nearly all of a file's 4 MB. Loading such a file
 reads the package's encoder (msgpack, read here with NumPy) and refuses it if its sha256 differs.
 
 `load_npz` checks everything a reader relies on (format, version, every array's presence, shape, dtype and
 finiteness against the shapes the metadata implies) and raises ValueError naming the file and the problem.
-`load_as_policy` turns a file back into a `train.policies.Policy` (for `mjx-push eval` on the MJX scene).
+`load_as_policy` turns a file back into a `mjx_push.train.runs.policies.Policy` (for `mjx-push eval` on the MJX scene).
 This module imports only NumPy when loading; `export_policy` and `load_as_policy` import the training
 side lazily.
 """
@@ -314,14 +314,14 @@ def _pixel_convention() -> str:
 
 
 def build_metadata(policy, provenance: dict | None = None) -> dict:
-    """The JSON record for a `train.policies.Policy`; ``provenance`` (e.g. the run directory and the commit
+    """The JSON record for a `mjx_push.train.runs.policies.Policy`; ``provenance`` (e.g. the run directory and the commit
     that trained it) is recorded as given."""
     from importlib.metadata import PackageNotFoundError, version
 
     from mjx_push import encoder as enc
     from mjx_push import scene
-    from train import configio
-    from train.networks import ACTION_DIM, LOG_STD_MAX, LOG_STD_MIN, OBS_DIM
+    from mjx_push.train import configio
+    from mjx_push.train.networks import ACTION_DIM, LOG_STD_MAX, LOG_STD_MIN, OBS_DIM
 
     cfg = policy.config
     agent, env = cfg.train.agent, cfg.env
@@ -425,14 +425,14 @@ def _unflatten(arrays: dict[str, np.ndarray], prefix: str) -> dict:
 
 
 def load_as_policy(path: Path | str):
-    """An exported .npz back as a `train.policies.Policy` (JAX arrays), e.g. to evaluate it on the MJX scene.
+    """An exported .npz back as a `mjx_push.train.runs.policies.Policy` (JAX arrays), e.g. to evaluate it on the MJX scene.
     The encoder's log-variance head is not exported (only the mean is ever used by a policy): it comes
     back as zeros so the flax encoder's parameter tree is complete."""
     import jax
     import jax.numpy as jnp
 
-    from train.policies import Policy
-    from train.presets import config_from_dict
+    from mjx_push.train.runs.policies import Policy
+    from mjx_push.train.presets import config_from_dict
 
     pf = load_npz(path)
     try:
@@ -453,7 +453,7 @@ def load_as_policy(path: Path | str):
 
 
 def export_policy(policy, out: Path | str, encoder: str = "embed", provenance: dict | None = None) -> dict:
-    """Write `policy` (a `train.policies.Policy`) to the .npz `out`; returns the metadata written.
+    """Write `policy` (a `mjx_push.train.runs.policies.Policy`) to the .npz `out`; returns the metadata written.
     ``encoder`` "package" leaves the encoder out and records the package encoder's sha256 instead (the
     policy must have been trained with that encoder: checked, array by array)."""
     out = Path(out)

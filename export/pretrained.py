@@ -1,6 +1,6 @@
 """The trained policies that ship with the package, named ``pretrained:NAME`` wherever a command takes a
 policy (`mjx-push eval`, `mjx-push deploy`): exported `.npz` files in ``export/pretrained_policies/``
-that reference the package's encoder by its sha256 instead of holding it (`export.policy_file`), so each is
+that reference the package's encoder by its sha256 instead of holding it (`mjx_push.export.policy_file`), so each is
 a few hundred kB. Each file's metadata names the run, budget, seed and commit that produced it
 (``provenance`` and ``run_config``)."""
 

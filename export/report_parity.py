@@ -4,7 +4,7 @@ episodes of its MJX evaluation, and a Markdown table of the two side by side (`O
 
 Each CPU evaluation is cached next to the run's MJX one (`eval-cpu-<masks>-<setting>-<shape>-<episodes>.json`)
 and tied, like it, to the sha256 of the policy's weights, so a rerun redoes nothing. The training side
-(`train.reproduce`) cannot import this module (layers: mjx_push -> train -> export); the command line
+(`mjx_push.train.comparison`) cannot import this module (layers: mjx_push -> train -> export); the command line
 composes the two.
 """
 
@@ -14,13 +14,16 @@ import json
 from pathlib import Path
 from typing import Callable
 
-from export import sim_eval
-from export.metrics import agreement_by_shape, summarize_records
+from mjx_push.export import sim_eval
+from mjx_push.export.metrics import agreement_by_shape, summarize_records
 from mjx_push.errors import ConfigError
-from train import atomic, policies
-from train import reproduce as rep
-from train.evaluate import EvalSpec
-from train.report import AGENT_NAMES, SHAPE_NAMES
+from mjx_push.train.runs import atomic
+from mjx_push.train.runs import policies
+from mjx_push.train.comparison.cache import policy_fingerprint, read_cache
+from mjx_push.train.comparison.report import AGENT_NAMES, SHAPE_NAMES
+from mjx_push.train.comparison.reproduce import is_finished
+from mjx_push.train.comparison.study import Study
+from mjx_push.train.episodes import EvalSpec
 
 SOURCES = ("render", "analytic")
 
@@ -28,22 +31,22 @@ SOURCES = ("render", "analytic")
 def cpu_evaluation(run_dir: Path, setting: str, shape: str, episodes: int, source: str, log: Callable = print) -> dict:
     """The CPU MuJoCo run (mask `source`) of the episodes of the run's cached MJX evaluation, with its
     summary and its agreement with that evaluation: {"summary", "agreement", "records", ...}."""
-    from export.numpy_policy import NumpyPolicy
+    from mjx_push.export.numpy_policy import NumpyPolicy
 
     if source not in SOURCES:
         raise ConfigError(f"mask source must be one of {SOURCES}, got {source!r}")
     run_dir = Path(run_dir)
     mjx_path = run_dir / f"eval-{setting}-{shape}-{episodes}.json"
-    mjx = rep.read_cache(mjx_path)
+    mjx = read_cache(mjx_path)
     if not mjx.get("per_episode") or not mjx.get("policy"):
         raise ConfigError(f"{mjx_path}: no MJX evaluation to compare with (run mjx-push reproduce first)")
-    fingerprint = rep.policy_fingerprint(run_dir / mjx["policy"])
+    fingerprint = policy_fingerprint(run_dir / mjx["policy"])
     if mjx.get("policy_sha256") != fingerprint:
         raise ConfigError(
             f"{mjx_path} belongs to other weights than {run_dir / mjx['policy']}: rerun mjx-push reproduce"
         )
     path = run_dir / f"eval-cpu-{source}-{setting}-{shape}-{episodes}.json"
-    cached = rep.read_cache(path)
+    cached = read_cache(path)
     if cached.get("policy_sha256") == fingerprint and cached.get("spec") == mjx["spec"] and cached.get("records"):
         log(f"reusing evaluation {path}")
         return cached
@@ -69,26 +72,19 @@ def cpu_evaluation(run_dir: Path, setting: str, shape: str, episodes: int, sourc
     return result
 
 
-def parity_report(
-    out: Path,
-    runs: list[tuple[str, int]],
-    shapes: tuple[str, ...],
-    setting: str,
-    episodes: int,
-    sources: tuple[str, ...],
-    log: Callable = print,
-    total_env_steps: int | None = None,
-) -> Path:
-    """Evaluate every finished (agent, seed) of `runs` in CPU MuJoCo per shape and mask source and write
-    `out`/report-parity.md: per agent and shape, success in MJX and in CPU MuJoCo (mean over the seeds,
-    each seed's value in brackets), the per-episode agreement and the correlation of final distances.
-    `total_env_steps`: only runs trained for that many env steps count as finished (`reproduce
-    --total-env-steps`: a run not yet trained longer is left out, as in the MJX report)."""
-    out = Path(out)
+def parity_report(study: Study, runs: list[tuple[str, int]], sources: tuple[str, ...], log: Callable = print) -> Path:
+    """Evaluate every finished (agent, seed) of `runs` (the study's budget runs) in CPU MuJoCo per shape
+    and mask source on the study's episodes and write OUT/report-parity.md: per agent and shape, success
+    in MJX and in CPU MuJoCo (mean over the seeds, each seed's value in brackets), the per-episode
+    agreement and the correlation of final distances. Only runs trained for the study's env steps count
+    as finished (`reproduce --total-env-steps`: a run not yet trained longer is left out, as in the MJX
+    report)."""
+    out, shapes, setting, episodes = study.out, study.shapes, study.setting, study.episodes_per_shape
+    total = study.budget_env_steps
     rows, left_out = [], []
     for agent, seed in runs:
-        run_dir = rep.run_dir_of(out, agent, seed)
-        if not rep.is_finished(run_dir, total_env_steps):
+        run_dir = study.run_dir(agent, seed)
+        if not is_finished(run_dir, total):
             left_out.append(run_dir.name)
             continue
         for shape in shapes:

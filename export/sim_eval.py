@@ -1,8 +1,8 @@
 """Run an exported policy in `CpuPushEnv` for the evaluation protocol (docs/task.md section 7; used by
 `mjx-push deploy`).
 
-Settings, shapes and episodes are those of `mjx-push eval` (`train.evaluate`): episode i's object, start
-and goal come from `train.evaluate.episode_objects(spec, ..., [i])`, so the MJX evaluation and this one
+Settings, shapes and episodes are those of `mjx-push eval` (`mjx_push.train.evaluate`): episode i's object, start
+and goal come from `mjx_push.train.episodes.episode_objects(spec, ..., [i])`, so the MJX evaluation and this one
 score a policy on the same episodes; with shape "all" even episodes are cuboids and odd ones cylinders.
 Observation noise is drawn from seed + i. An invalid episode (NaN, object off or through the table)
 counts as a failure with the worst reward, as in training's evaluation.
@@ -17,15 +17,18 @@ from collections.abc import Callable
 import numpy as np
 
 from mjx_push.config import EnvConfig
+from mjx_push.perturb import PerturbConfig
 
 VIDEO_HEIGHT = 192
 VIDEO_SIZES = {"top": (VIDEO_HEIGHT, 256), "under_table": (VIDEO_HEIGHT, VIDEO_HEIGHT)}
 
 
-def env_config(metadata: dict, spec) -> EnvConfig:
+def env_config(metadata: dict, spec, perturb: PerturbConfig | None = None) -> EnvConfig:
     """The task the policy was trained on (controller, solver, action mapping from the exported run
-    configuration) with the objects of the evaluation `spec` (a `train.evaluate.EvalSpec`)."""
-    from train import configio
+    configuration) with the objects of the evaluation `spec` (a `mjx_push.train.episodes.EvalSpec`),
+    clean whatever the policy trained under, or with the perturbations `perturb` (a real cell's,
+    docs/robustness.md)."""
+    from mjx_push.train import configio
 
     try:
         base = configio.from_dict(EnvConfig, metadata["run_config"]["env"], "env")
@@ -48,15 +51,19 @@ def env_config(metadata: dict, spec) -> EnvConfig:
         )
     objects_cfg = spec.object_config(base.objects)
     shape = "any" if spec.shape == "all" else spec.shape
-    return dataclasses.replace(base, objects=dataclasses.replace(objects_cfg, shape=shape))
+    return dataclasses.replace(
+        base, objects=dataclasses.replace(objects_cfg, shape=shape), perturb=perturb or PerturbConfig()
+    )
 
 
-def run_cpu(policy, spec, mask_source: str, success_tau: float | None = None) -> list[dict]:
-    """`run_episodes` of a `NumpyPolicy` in a `CpuPushEnv` of `env_config(policy.metadata, spec)` with
-    `mask_source` masks, scored at `success_tau` (default: the radius the policy trained for)."""
-    from export.cpu_env import CpuPushEnv
+def run_cpu(
+    policy, spec, mask_source: str, success_tau: float | None = None, perturb: PerturbConfig | None = None
+) -> list[dict]:
+    """`run_episodes` of a `NumpyPolicy` in a `CpuPushEnv` of `env_config(policy.metadata, spec, perturb)`
+    with `mask_source` masks, scored at `success_tau` (default: the radius the policy trained for)."""
+    from mjx_push.export.cpu_env import CpuPushEnv
 
-    config = env_config(policy.metadata, spec)
+    config = env_config(policy.metadata, spec, perturb)
     if success_tau is not None:
         config = dataclasses.replace(config, success_tau=success_tau)
     env = CpuPushEnv(config, mask_source=mask_source)
@@ -85,7 +92,7 @@ def run_episodes(policy, env, spec, on_frame: Callable[[int, object], None] | No
     `act_raw(object_mask, goal_mask, ee_xy)`) in `env` (a `CpuPushEnv` built from `env_config`), the
     episodes of the MJX evaluation with the same `spec`. `on_frame(episode, env)` is called after the
     reset and after every step (for videos). Returns one record per episode."""
-    from train.evaluate import episode_geom_type, episode_objects
+    from mjx_push.train.episodes import episode_geom_type, episode_objects
 
     steps = env.config.episode_length
     geoms = [episode_geom_type(spec.shape, i) for i in range(spec.episodes)]

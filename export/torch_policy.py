@@ -1,5 +1,5 @@
 """The exported policy as a PyTorch `nn.Module` (optional: `pip install -e ".[torch]"`), built from the same
-`.npz` as `export.numpy_policy` and giving the same actions.
+`.npz` as `mjx_push.export.numpy_policy` and giving the same actions.
 
     policy = TorchPolicy.from_file("egru.npz")       # reset() / act() / act_raw() / encode(), like NumpyPolicy
     net = policy.net                                 # the nn.Module: encode(masks), step(carry, ee, z_obj, z_goal)
@@ -10,7 +10,7 @@ into the stock cell. torch is imported only when a module is built.
 
 Latency: a policy step is one small sample, which torch's intra-op threads only slow down; call
 `torch.set_num_threads(1)` in a control process (measured 2 ms instead of 120 ms per step on a busy
-2-core machine), as for NumPy's BLAS (see `export.numpy_policy`).
+2-core machine), as for NumPy's BLAS (see `mjx_push.export.numpy_policy`).
 """
 
 from __future__ import annotations
@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from export.numpy_policy import decode_substeps
-from export.policy_file import PolicyFile, feature_dim, load_npz
+from mjx_push.export.numpy_policy import decode_substeps
+from mjx_push.export.policy_file import PolicyFile, feature_dim, load_npz
 from mjx_push.errors import ConfigError
 
 INSTALL_HINT = 'PyTorch is not installed; install the optional extra with `pip install -e ".[torch]"` (torch==2.13.0)'
@@ -137,7 +137,7 @@ def build_net(pf: PolicyFile):
 
 
 class TorchPolicy:
-    """`export.deploy.Policy` on the torch module: the same semantics as `NumpyPolicy`."""
+    """`mjx_push.export.deploy.Policy` on the torch module: the same semantics as `NumpyPolicy`."""
 
     def __init__(self, pf: PolicyFile):
         self.torch = _torch()

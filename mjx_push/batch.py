@@ -30,7 +30,7 @@ import jax.numpy as jnp
 from brax.envs.base import State
 from flax import struct
 
-from mjx_push import devices, objects
+from mjx_push import devices, objects, perturb
 from mjx_push.env import EnvConfig, PushEnv
 from mjx_push.errors import ConfigError
 
@@ -118,7 +118,8 @@ class PushBatch:
         """New episodes, drawn from `key`; where `episodes["use"]` (a traced bool) is True, the given
         ones instead: `episodes["keys"]` [N, 2] and `episodes["params"]` (ObjectParams [N]), in the
         batch's order (box group first), as `PushEnv.reset_with` takes them (evaluation episodes
-        through the same compiled reset as training's)."""
+        through the same compiled reset as training's; they run without the environment's
+        perturbations, as the evaluation protocol does)."""
         keys = jax.random.split(key, self.num_envs)
         if episodes is None:
             return BatchState(tuple(self._run(env.reset, k) for env, k in zip(self.envs, self._split(keys))))
@@ -129,7 +130,12 @@ class PushBatch:
                 rng, k_obj = jax.random.split(k)  # PushEnv.reset's draws
                 drawn = objects.sample(k_obj, env.config.objects, env.geom_type, env.home_flange[:2])
                 pick = lambda a, b: jnp.where(u, a, b)  # noqa: E731
-                return env.reset_with(pick(k_given, rng), jax.tree.map(pick, p_given, drawn))
+                key, params = pick(k_given, rng), jax.tree.map(pick, p_given, drawn)
+                if not env.perturbed:
+                    return env.reset_with(key, params)
+                # Given episodes (evaluations) run clean in a randomised environment.
+                record = jax.tree.map(pick, perturb.neutral_episode(xp=jnp), env.draw_perturbation(key))
+                return env.reset_with(key, params, record)
 
             return f
 

@@ -6,7 +6,8 @@ environment and a robot all read (docs/task.md sections 1, 3 and 4).
   module of the package) registers it as a JAX pytree with the fields as children, as
   `flax.struct.dataclass` did, so JAX code batches, traces and checkpoints it as before;
 - `ControllerConfig`: the task-space velocity law (`mjx_push.control_law`);
-- `EnvConfig`: the environment, holding the three above and the MJX solver settings.
+- `EnvConfig`: the environment, holding the three above, the MJX solver settings and the perturbations
+  of a real cell (`mjx_push.perturb.PerturbConfig`, off by default).
 
 The usual import paths still give these very classes: `mjx_push.env.EnvConfig`,
 `mjx_push.objects.ObjectConfig` / `ObjectParams`, `mjx_push.controller.ControllerConfig`.
@@ -23,6 +24,7 @@ import numpy as np
 
 from mjx_push import scene
 from mjx_push.errors import ConfigError
+from mjx_push.perturb import PerturbConfig
 from mjx_push.task_rules import TAU
 
 # --- objects ----------------------------------------------------------------------------------------
@@ -100,7 +102,7 @@ class ObjectConfig:
 class ObjectParams:
     """One environment's object. `size` is the MJCF geom size (box: half extents; cylinder: radius,
     half height, 0); poses are (x, y, yaw). Leaves are JAX arrays in the MJX environment, NumPy arrays
-    in the CPU one (`export.cpu_env.params_to_numpy`)."""
+    in the CPU one (`mjx_push.export.cpu_env.params_to_numpy`)."""
 
     size: Any  # (3,)
     mass: Any  # ()
@@ -171,6 +173,9 @@ class EnvConfig:
     # band around its resting height (below: sank through; above: flew off).
     oob_sink: float = 0.02
     oob_rise: float = 0.15
+    # What a real cell brings (camera, latency, controller, object and rod errors): off by default;
+    # training-time randomisation when set (mjx_push.perturb, docs/robustness.md).
+    perturb: PerturbConfig = field(default_factory=PerturbConfig)
 
     def __post_init__(self):
         lo, hi = self.substeps

@@ -14,7 +14,7 @@ two rows linear in the angle: the horizontal components of the angular velocity 
 
 `law` takes plain arrays (flange pose, Jacobians, joint positions), so each simulator, and a real robot,
 supplies them from its own kinematics: `mjx_push.controller` from MJX data (jit-compiled, float32),
-`export.controller_np` from `mujoco.MjData` at every 1 ms substep, `export/panda_py_robot.py` from
+`mjx_push.export.controller_np` from `mujoco.MjData` at every 1 ms substep, `export/panda_py_robot.py` from
 panda-py's model at 1 kHz (both NumPy, float64). The configuration is `mjx_push.config.ControllerConfig`.
 This module imports no JAX (`tests/test_deploy_imports.py`).
 """

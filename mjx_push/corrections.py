@@ -1,6 +1,6 @@
 """Correction counters of docs/task.md section 7 as a JAX pytree, updated at every 1 ms substep on
 noise-free positions. The rule is `mjx_push.task_rules.correction_events` (shared with the CPU
-environment's `export.corrections_np`): with d_k the object-goal distance at substep k, tau the success
+environment's `mjx_push.export.corrections_np`): with d_k the object-goal distance at substep k, tau the success
 radius and eps a dead band,
 - overshoot: d_{k-1} < tau and d_k >= tau and |d_k - tau| > eps;
 - distance: a flag is set when d_k > d_{k-1} + eps; while it is set, d_k < d_{k-1} - eps counts one

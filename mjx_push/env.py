@@ -11,20 +11,30 @@ differ (see `mjx_push.batch` for the utilisation this costs when they wait for e
 `begin_step` (decode the action, set the target and the substep budget) -> `advance` (run up to n
 substeps; an environment whose budget is spent stands still) -> `finish_step` (observation, reward,
 validity). `step` chains them with an unbounded `advance`.
+
+Perturbations of a real cell (`config.perturb`, `mjx_push.perturb`; off by default, and then none of
+their code runs): the record drawn at reset (or given to `reset_with`) scales the object's mass and
+friction, changes the rod's geometry and displaces the camera; observations pass through the real
+pipeline's mask errors and a missed frame; the first substeps of a step run the previous target
+(latency), and every substep the servo's gain and lag.
 """
 
 from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from brax.envs.base import Env, State
 from mujoco import mjx
 
 from mjx_push import controller as ctl
 from mjx_push import corrections as corr
-from mjx_push import masks, objects, scene, task_rules
+from mjx_push import masks, objects, perturb, scene, task_rules
 from mjx_push.config import EnvConfig  # the task settings, without JAX (also imported from here)
 from mjx_push.errors import ConfigError
+
+
+_PERTURB_STREAM = 0x7E57  # folded into the reset key for the episode's perturbation record
 
 
 # Explicit dtypes everywhere in the state: a weakly typed scalar returned by reset but strongly typed
@@ -70,6 +80,11 @@ class PushEnv(Env):
         self.sys = mjx.put_model(self.mj_model)
         self._data0 = mjx.make_data(self.sys)
         self.home_flange = jnp.asarray(scene.home_flange_pos(), jnp.result_type(float))
+        # The perturbations this environment runs (docs/robustness.md): a static set, so an environment
+        # without any runs exactly the code it always ran.
+        self.perturbed = config.perturb.active()
+        self._edge_max = int(np.ceil(abs(config.perturb.mask_edge)))
+        self._flips = "mask_flip" in self.perturbed
 
     # --- brax Env interface -------------------------------------------------------------------------
     @property
@@ -90,13 +105,30 @@ class PushEnv(Env):
         params = objects.sample(k_obj, self.config.objects, self.geom_type, self.home_flange[:2])
         return self.reset_with(rng, params)
 
-    def reset_with(self, rng: jax.Array, params: objects.ObjectParams) -> State:
-        """Start an episode with the given object (evaluation scenarios, tests, replays)."""
+    def draw_perturbation(self, rng: jax.Array) -> dict:
+        """The perturbation record (`mjx_push.perturb.draw_episode`) `reset_with(rng, params)` draws."""
+        u = jax.random.uniform(jax.random.fold_in(rng, _PERTURB_STREAM), (perturb.N_UNIFORMS,))
+        return perturb.draw_episode(self.config.perturb, u, xp=jnp)
+
+    def reset_with(self, rng: jax.Array, params: objects.ObjectParams, perturbation: dict | None = None) -> State:
+        """Start an episode with the given object (evaluation scenarios, tests, replays). An environment
+        with perturbations (`config.perturb`) draws the episode's record from `rng`, or takes
+        `perturbation` (a `mjx_push.perturb.draw_episode` record: the stress suite, tests); the object's
+        mass and friction factors apply to `params` here."""
+        if perturbation is not None and not self.perturbed:
+            raise ConfigError("a perturbation record needs an environment with env.perturb set")
+        rng0 = rng
         rng, k_noise = jax.random.split(rng)
-        data = self._initial_data(params)
+        if self.perturbed:
+            if perturbation is None:
+                perturbation = self.draw_perturbation(rng0)
+            perturbation = jax.tree.map(lambda x: jnp.asarray(x, jnp.result_type(float)), perturbation)
+            params = perturb.scale_object(params, perturbation, xp=jnp)
+        m = self._model(params, perturbation)
+        data = self._initial_data(params, m)
         hh = objects.half_height(params, self.geom_type)
-        goal_mask = masks.object_mask(
-            self.geom_type, params.size, params.goal[:2], params.goal[2], scene.TABLE_TOP + hh
+        goal_mask = self._mask(
+            params, params.goal[:2], params.goal[2], scene.TABLE_TOP + hh, perturbation, jax.random.fold_in(rng0, 1)
         )
         zero_i = jnp.asarray(0, jnp.int32)
         info = {
@@ -117,8 +149,14 @@ class PushEnv(Env):
             "max_height_error": _f0(),
             "truncation": _f0(),
         }
+        if self.perturbed:
+            info["perturbation"] = perturbation
+            if "latency" in self.perturbed:  # the command before the step's own (home at reset)
+                info.update(prev_target=self.home_flange, prev_held=jnp.zeros(7))
         info.update(self._ground_truth(data, params))
-        obs = self._observation(data, params, goal_mask, k_noise)
+        obs = self._observation(data, info, k_noise)
+        if "frame_repeat" in self.perturbed:
+            info["shown_mask"] = obs["object_mask"]
         reward, success = self._reward(info)
         metrics = {"success": success}
         return State(data, obs, reward, _f0(), metrics, info)
@@ -145,10 +183,12 @@ class PushEnv(Env):
         )
         n = decode_substeps(action[2], cfg.substeps)
         info = dict(state.info)
+        if "latency" in self.perturbed:
+            info.update(prev_target=info["target"], prev_held=info["held_ctrl"])
         info.update(target=target, substeps_left=n, substeps=n, bad_actions=info["bad_actions"] + bad)
         info.update(max_tilt=_f0(), max_height_error=_f0())
         if cfg.controller.hold_per_step:
-            m = self.model(info["params"])
+            m = self._model(info["params"], info.get("perturbation"))
             info["held_ctrl"] = ctl.joint_velocity(m, state.pipeline_state, target, self.ids, cfg.controller)
         return state.replace(info=info)
 
@@ -160,17 +200,26 @@ class PushEnv(Env):
         predicate to the host each substep. Under `vmap` this is what a `while_loop` with a batched
         predicate computes too (every iteration runs for all and selects), so the results are the
         same. Without it (one environment's whole step) a `while_loop` stops at the last substep."""
-        m = self.model(state.info["params"])
+        m = self._model(state.info["params"], state.info.get("perturbation"))
         cfg = self.config
         goal_xy = state.info["params"].goal[:2]
         home_z = self.home_flange[2]
+        latency = "latency" in self.perturbed
+        servo = bool(self.perturbed & {"velocity_gain", "velocity_lag"})
 
         def substep(carry):
             data, info = carry
+            target, held = info["target"], info["held_ctrl"]
+            if latency:  # the previous command runs on for the step's first substeps
+                late = info["substeps"] - info["substeps_left"] < info["perturbation"]["latency"]
+                target = jnp.where(late, info["prev_target"], target)
+                held = jnp.where(late, info["prev_held"], held)
             if cfg.controller.hold_per_step:
-                dq = info["held_ctrl"]
+                dq = held
             else:
-                dq = ctl.joint_velocity(m, data, info["target"], self.ids, cfg.controller)
+                dq = ctl.joint_velocity(m, data, target, self.ids, cfg.controller)
+            if servo:
+                dq = perturb.actuate(dq, data.ctrl, info["perturbation"], xp=jnp)
             data = mjx.step(m, data.replace(ctrl=dq))
             # Metrics on the substep's kinematics (MJX data after a step holds the positions the step
             # started from; one substep of lag is immaterial for counting).
@@ -216,7 +265,14 @@ class PushEnv(Env):
         info["invalid_count"] = info["invalid_count"] + invalid.astype(jnp.int32)
         done = (info["step"] >= self.config.episode_length).astype(jnp.result_type(float))
         info["truncation"] = done  # time limit only: learners bootstrap
-        obs = self._observation(data, params, info["goal_mask"], k_noise)
+        obs = self._observation(data, info, k_noise)
+        if self.perturbed & {"frame_repeat", "frame_empty"}:  # a missed frame
+            u = jax.random.uniform(jax.random.fold_in(k_noise, 3), ())
+            shown = info.get("shown_mask", obs["object_mask"])
+            mask = perturb.missed_frame(obs["object_mask"], shown, info["perturbation"], u, xp=jnp)
+            obs = dict(obs, object_mask=mask)
+            if "shown_mask" in info:
+                info["shown_mask"] = mask
         reward, success = self._reward(info)
         metrics = dict(state.metrics)
         metrics["success"] = success
@@ -227,12 +283,30 @@ class PushEnv(Env):
         """The MJX model of an environment with object `params`."""
         return objects.apply(self.sys, params, self.ids, self.geom_type)
 
-    def _initial_data(self, params: objects.ObjectParams) -> mjx.Data:
+    def _model(self, params: objects.ObjectParams, perturbation: dict | None) -> mjx.Model:
+        """`model(params)` with the push rod of the episode's perturbation record."""
+        m = self.model(params)
+        if not self.perturbed & {"rod_radius", "rod_length"}:
+            return m
+        g, mj = self.ids.rod_geom, self.mj_model
+        size, pos, rbound, aabb = perturb.rod_geometry(
+            mj.geom_size[g], mj.geom_pos[g], mj.geom_rbound[g], mj.geom_aabb[g], perturbation["rod"], xp=jnp
+        )
+        return m.tree_replace(
+            {
+                "geom_size": m.geom_size.at[g].set(size),
+                "geom_pos": m.geom_pos.at[g].set(pos),
+                "geom_rbound": m.geom_rbound.at[g].set(rbound),
+                "geom_aabb": m.geom_aabb.at[g].set(aabb),
+            }
+        )
+
+    def _initial_data(self, params: objects.ObjectParams, m: mjx.Model) -> mjx.Data:
         hh = objects.half_height(params, self.geom_type)
         obj = jnp.concatenate([params.start[:2], (scene.TABLE_TOP + hh)[None], yaw_quat(params.start[2])])
         qpos = jnp.concatenate([jnp.asarray(scene.HOME_QPOS, jnp.result_type(float)), obj])
         data = self._data0.replace(qpos=qpos)
-        return mjx.forward(self.model(params), data)
+        return mjx.forward(m, data)
 
     def _ground_truth(self, data: mjx.Data, params: objects.ObjectParams) -> dict:
         a, v = self.ids.object_qpos, self.ids.object_qvel
@@ -251,17 +325,38 @@ class PushEnv(Env):
             "ee_vel": (jacp.T @ data.qvel)[:2],
         }
 
-    def _observation(self, data, params, goal_mask, key) -> dict:
+    def _mask(self, params, xy, yaw, z_center, perturbation: dict | None, key) -> jax.Array:
+        """The camera's mask of the object at (xy, yaw): the analytic silhouette, seen by the episode's
+        displaced camera and through the real pipeline's errors when the environment has them."""
+        p = self.perturbed
+        if "camera_shift" in p or "camera_yaw" in p:
+            xy, yaw = perturb.camera_view(xy, yaw, perturbation["camera"], xp=jnp)
+        mask = masks.object_mask(self.geom_type, params.size, xy, yaw, z_center)
+        r_max = self.config.perturb.mask_open_close
+        if self._edge_max or self._flips or r_max:
+            k_edge, k_pix = jax.random.split(key)
+            u_pix = jax.random.uniform(k_pix, mask.shape) if self._flips else None
+            u_edge = jax.random.uniform(k_edge, ())
+            mask = perturb.camera_mask(mask, perturbation, u_edge, u_pix, self._edge_max, r_max, xp=jnp)
+        return mask
+
+    def _observation(self, data, info, key) -> dict:
         a = self.ids.object_qpos
+        params = info["params"]
         yaw = quat_yaw(data.qpos[a + 3 : a + 7])
-        obj_mask = masks.object_mask(self.geom_type, params.size, data.qpos[a : a + 2], yaw, data.qpos[a + 2])
+        # Perturbation draws come from streams folded off the noise key: the noise itself is unchanged.
+        obj_mask = self._mask(
+            params, data.qpos[a : a + 2], yaw, data.qpos[a + 2], info.get("perturbation"), jax.random.fold_in(key, 1)
+        )
         ee = data.site_xpos[self.ids.flange_site][:2]
         noise = self.config.obs_noise * jax.random.normal(key, (2,))
-        return {"ee_xy": ee + noise, "object_mask": obj_mask, "goal_mask": goal_mask}
+        if "flange_noise" in self.perturbed:
+            noise = noise + info["perturbation"]["flange_noise"] * jax.random.normal(jax.random.fold_in(key, 2), (2,))
+        return {"ee_xy": ee + noise, "object_mask": obj_mask, "goal_mask": info["goal_mask"]}
 
     def _reward(self, info) -> tuple[jax.Array, jax.Array]:
         dist = jnp.linalg.norm(info["object_xy"] - info["goal_xy"])
-        success = (dist < self.config.success_tau).astype(jnp.result_type(float))
+        success = task_rules.reached(dist, self.config.success_tau).astype(jnp.result_type(float))
         return success - 1.0, success
 
     def _valid(self, data: mjx.Data, params: objects.ObjectParams) -> jax.Array:

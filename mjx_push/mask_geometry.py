@@ -16,7 +16,7 @@ The object is assumed upright (tilt is ignored; it stays below a degree in norma
 
 Every function broadcasts over leading batch dimensions of its pose arguments (a stack of poses costs one
 NumPy call; JAX callers `vmap` single poses) and computes in the default float type of `xp`: float64 with
-NumPy (the CPU environment, `export.cpu_env`), float32 with JAX (the MJX environment through
+NumPy (the CPU environment, `mjx_push.export.cpu_env`), float32 with JAX (the MJX environment through
 `mjx_push.masks`, jit-compiled). Pixels whose centre lies within ~1e-6 pixel of the silhouette's edge may
 therefore differ between the two (measured agreement in tests/test_cpu_env.py).
 This module imports no JAX (`tests/test_deploy_imports.py`).

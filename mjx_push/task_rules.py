@@ -1,8 +1,8 @@
 """The task's per-step rules, written once over an array module `xp` (NumPy or jax.numpy).
 
 The MJX environment (`mjx_push.env`, `mjx_push.corrections`) calls these with `xp=jax.numpy` under jit,
-the CPU MuJoCo environment and the deployment loop (`export.cpu_env`, `export.corrections_np`,
-`export.deploy`, `export.numpy_policy`) with NumPy, the default. They use no Python control flow on
+the CPU MuJoCo environment and the deployment loop (`mjx_push.export.cpu_env`, `mjx_push.export.corrections_np`,
+`mjx_push.export.deploy`, `mjx_push.export.numpy_policy`) with NumPy, the default. They use no Python control flow on
 array values, so they trace under `jit`/`vmap`, and compute in their inputs' floating type: NumPy callers
 keep float64, except `decode_substeps`, which they call on float32 (the JAX environment's type) so that
 both sides give the same count.
@@ -56,6 +56,17 @@ def quat_yaw(q, *, xp=np):
     """Yaw (rad) of quaternion `q` (w, x, y, z)."""
     w, x, y, z = q
     return xp.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+
+
+def reached(dist, tau: float = TAU):
+    """The task's success: the object's centre strictly closer than `tau` to the goal's (boolean). Every
+    scorer asks this (the environments, the learner's rewards and statistics, the evaluators)."""
+    return dist < tau
+
+
+def sparse_reward(dist, tau: float = TAU):
+    """The task's reward for a step ending at object-goal distance `dist`: 0 once reached, else -1."""
+    return reached(dist, tau) * 1.0 - 1.0
 
 
 def correction_events(d_prev, flag, d, tau: float = TAU, eps: float = EPS, *, xp=np):

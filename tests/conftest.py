@@ -88,7 +88,7 @@ def encoder_file(tmp_path_factory) -> str:
 @pytest.fixture(scope="session")
 def tiny_egru_run(tmp_path_factory, encoder_file):
     """An eGRU trained end to end on the MJX scene at a tiny size: (config, run dir, summary, state)."""
-    from train import run as run_mod
+    from mjx_push.train.runs import run as run_mod
     from tests.helpers import tiny_run_config
 
     cfg = tiny_run_config("egru", encoder_file)
@@ -103,9 +103,9 @@ def real_update():
     update tests of train/sac.py and of its data-parallel use share it."""
     import jax.numpy as jnp
 
-    from train.config import AgentConfig, SACConfig
-    from train.networks import make_networks
-    from train.sac import init_state
+    from mjx_push.train.config import AgentConfig, SACConfig
+    from mjx_push.train.networks import make_networks
+    from mjx_push.train.sac import init_state
 
     agent, cfg, T = AgentConfig("vpm", hidden=(32, 32)), SACConfig(batch_size=8), 5
     nets = make_networks(agent)

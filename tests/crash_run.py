@@ -10,13 +10,13 @@ import os
 import signal
 import sys
 
-import train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
+import mjx_push.train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
 
 import jax
 from orbax.checkpoint._src.path import atomicity
 
 from tests.helpers import TOY_TAU, toy_run_config
-from train import run as run_mod
+from mjx_push.train.runs import run as run_mod
 from tests.toy import make_toy
 
 # The test process's compilation cache (tests/conftest.py): the toy trainer is compiled there already.

@@ -1,10 +1,10 @@
 """One process of a data-parallel run on localhost, started by tests/test_data_parallel.py: joins the
-run through `jax.distributed` with one CPU device of its own, trains through `train.run.run` in a shared run directory, and writes its final learner state (all
+run through `jax.distributed` with one CPU device of its own, trains through `mjx_push.train.runs.run.run` in a shared run directory, and writes its final learner state (all
 but the replay shards) to `RUN_DIR/state-<process id>.npz` and its summary to `RUN_DIR/summary-<process id>.json`.
 
     python -m tests.distributed_worker PORT PROCESS_ID NUM_PROCESSES RUN_DIR CONFIG_JSON [--stop-after N] [--resume]
 
-CONFIG_JSON is a run configuration (`train.run.config_dict`); `--toy` trains it on the toy task
+CONFIG_JSON is a run configuration (`mjx_push.train.runs.run.config_dict`); `--toy` trains it on the toy task
 (tests/toy.py), otherwise on the MJX pushing scene.
 """
 
@@ -21,8 +21,9 @@ mjx_push.xla.use_cpu_devices(1)  # one CPU device per process: the run's devices
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
-from train import data_parallel, run as run_mod  # noqa: E402
-from train import presets  # noqa: E402
+from mjx_push.train import data_parallel  # noqa: E402
+from mjx_push.train.runs import run as run_mod  # noqa: E402
+from mjx_push.train import presets  # noqa: E402
 
 
 def main(argv=None) -> int:

@@ -79,8 +79,8 @@ def tiny_run_config(agent: str, encoder_path: str):
     """A run of 2 environments, 3-step episodes of 10-30 substeps: compilation, not simulation, costs."""
     import dataclasses
 
-    from train import presets
-    from train.config import LoopConfig, ReplayConfig
+    from mjx_push.train import presets
+    from mjx_push.train.config import LoopConfig, ReplayConfig
 
     cfg = presets.make(agent, "smoke")
     env = dataclasses.replace(cfg.env, episode_length=3, substeps=(10, 30))
@@ -108,8 +108,8 @@ def toy_run_config(encoder, kind="ugru", seed=0):
     """A run of the toy task (tests/toy.py): 5 batches of 4 environments x 10 steps, evaluations at 80,
     160 and 200 env steps. The measured presets' learner (normalisation, privileged critic,
     demonstrations with behaviour cloning), so checkpoints and saved policies carry all it adds."""
-    from train.config import AgentConfig, DemoConfig, LoopConfig, ReplayConfig, SACConfig, TrainConfig
-    from train.presets import RunConfig
+    from mjx_push.train.config import AgentConfig, DemoConfig, LoopConfig, ReplayConfig, SACConfig, TrainConfig
+    from mjx_push.train.config import RunConfig
 
     train_cfg = TrainConfig(
         agent=AgentConfig(
@@ -147,8 +147,8 @@ def toy_run_config(encoder, kind="ugru", seed=0):
 def latest_state(run_dir, cfg, adapter, step=None):
     """The TrainState of a run's latest checkpoint, or the one at `step` (`adapter`: the environment it
     trained on)."""
-    from train import checkpoints
-    from train.loop import make_train
+    from mjx_push.train.runs import checkpoints
+    from mjx_push.train.loop import make_train
 
     trainer = make_train(cfg.train, adapter)
     template = trainer.init(jax.random.PRNGKey(0))
@@ -159,7 +159,7 @@ def renderer_or_skip() -> None:
     """Skip a test that needs MuJoCo's offscreen renderer where there is none, but fail instead when
     MJX_PUSH_REQUIRE_RENDERER=1 (.ci/run sets it: CI machines have EGL, so a skip there would hide a
     broken renderer). renderer_available() tries once per process: MuJoCo aborts on a second failure."""
-    from export.cpu_env import renderer_available
+    from mjx_push.export.cpu_env import renderer_available
 
     if not renderer_available():
         no_renderer("no EGL / OSMesa / display")

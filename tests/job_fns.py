@@ -1,4 +1,4 @@
-"""Functions for the worker-pool test of `train.reproduce.run_jobs`: in a module of their own, so the
+"""Functions for the worker-pool test of `mjx_push.train.comparison.jobs.run_jobs`: in a module of their own, so the
 spawned workers import nothing heavy."""
 
 import os

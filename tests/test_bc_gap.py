@@ -1,7 +1,7 @@
 """benchmarks/bc_gap.py's arithmetic: the yaw-blind expert, the yaw floor and the shape groups, on
 hand-built states (no simulation here; the benchmark itself plays the episodes)."""
 
-import train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
+import mjx_push.train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
 
 import jax.numpy as jnp
 import numpy as np
@@ -9,8 +9,8 @@ import pytest
 
 from benchmarks.bc_gap import blind_expert, shape_of, yaw_floor, yaw_shifts
 from mjx_push import expert
-from train import presets
-from train.push_task import PRIV, PRIV_DIM, expert_ground_truth
+from mjx_push.train import presets
+from mjx_push.train.push_task import PRIV, PRIV_DIM, expert_ground_truth
 
 CFG = presets.make("vpm", "cpu")
 

@@ -1,4 +1,4 @@
-"""CPU MuJoCo environment (export.cpu_env) against the MJX environment (its Gymnasium wrapper: test_gym_env.py).
+"""CPU MuJoCo environment (mjx_push.export.cpu_env) against the MJX environment (its Gymnasium wrapper: test_gym_env.py).
 
 JAX use is kept to the session fixture `box_sim` (one compiled reset and step, shared with the physics
 tests) and a few small eager or jitted calls."""
@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from mujoco import mjx
 
-from export import controller_np, corrections_np
-from export.cpu_env import CpuPushEnv, decode_substeps, renderer_available, sanitize_action
+from mjx_push.export import controller_np, corrections_np
+from mjx_push.export.cpu_env import CpuPushEnv, decode_substeps, renderer_available, sanitize_action
 from mjx_push import controller, mask_geometry, masks, objects, scene
 from mjx_push import corrections as corr
 from mjx_push import env as mjx_env

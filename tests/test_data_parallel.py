@@ -1,7 +1,7 @@
 """Data-parallel training (train/data_parallel.py): the averaged update, the per-device layout of a
 run, its errors, and one run over two processes on localhost (jax.distributed with CPU collectives)."""
 
-import train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
+import mjx_push.train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
 
 import dataclasses
 import json
@@ -23,13 +23,13 @@ from mjx_push.errors import ConfigError
 from tests.test_learner_loop import TAU, toy_config
 from tests.test_learner_sac import KEY
 from tests.toy import make_toy
-from train import data_parallel
-from train.config import LoopConfig
-from train.loop import Runner, make_train
-from train.presets import RunConfig
-from train.presets import config_dict
-from train.networks import make_networks
-from train.sac import make_update
+from mjx_push.train import data_parallel
+from mjx_push.train.config import LoopConfig
+from mjx_push.train.loop import Runner, make_train
+from mjx_push.train.config import RunConfig
+from mjx_push.train.presets import config_dict
+from mjx_push.train.networks import make_networks
+from mjx_push.train.sac import make_update
 
 ROOT = Path(__file__).resolve().parents[1]
 two_devices = pytest.mark.skipif(len(jax.devices()) < 2, reason="needs 2 CPU host devices (a machine with 2 cores)")

@@ -1,4 +1,4 @@
-"""The camera pipeline (export.camera) on synthetic images and the deployment loop (export.deploy)."""
+"""The camera pipeline (mjx_push.export.camera) on synthetic images and the deployment loop (mjx_push.export.deploy)."""
 
 import colorsys
 
@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from export.camera import MaskPipeline, dilate, erode, resize_area, resize_nearest, rgb_to_hsv
-from export.cpu_env import CpuPushEnv, render_filter
-from export.deploy import Camera, Policy, Robot, SimCamera, SimRobot, run_episode
+from mjx_push.export.camera import MaskPipeline, dilate, erode, resize_area, resize_nearest, rgb_to_hsv
+from mjx_push.export.cpu_env import CpuPushEnv, render_filter
+from mjx_push.export.deploy import Camera, Policy, Robot, SimCamera, SimRobot, run_episode
 from mjx_push import mask_geometry, scene
 from tests.helpers import HOME_XY, a_s_for, make_params, renderer_or_skip
 
@@ -318,7 +318,7 @@ def test_the_panda_py_robot_sketch_fits_the_robot_interface():
     never run here: there is no arm)."""
     import sys
 
-    from export.panda_py_robot import PandaPyRobot
+    from mjx_push.export.panda_py_robot import PandaPyRobot
 
     assert isinstance(object.__new__(PandaPyRobot), Robot)
     assert "panda_py" not in sys.modules  # imported when a robot is made, not before

@@ -13,19 +13,20 @@ REPO = Path(__file__).resolve().parents[1]
 BLOCKED = ("jax", "jaxlib", "flax", "optax", "orbax", "brax", "mujoco.mjx")
 DEPLOY_MODULES = (
     "export",
-    "export.deploy",
-    "export.numpy_policy",
-    "export.policy_file",
-    "export.pretrained",
-    "export.camera",
-    "export.cpu_env",
-    "export.controller_np",
-    "export.corrections_np",
-    "export.panda_py_robot",
+    "mjx_push.export.deploy",
+    "mjx_push.export.numpy_policy",
+    "mjx_push.export.policy_file",
+    "mjx_push.export.pretrained",
+    "mjx_push.export.camera",
+    "mjx_push.export.cpu_env",
+    "mjx_push.export.controller_np",
+    "mjx_push.export.corrections_np",
+    "mjx_push.export.panda_py_robot",
     "mjx_push.config",
     "mjx_push.task_rules",
     "mjx_push.control_law",
     "mjx_push.mask_geometry",
+    "mjx_push.perturb",
 )
 
 # Installed first thing in the child: a meta-path finder that refuses the blocked packages and records
@@ -66,7 +67,7 @@ import numpy as np
 for name in {modules!r}:
     importlib.import_module(name)
 
-from export import camera, cpu_env, deploy, numpy_policy, pretrained
+from mjx_push.export import camera, cpu_env, deploy, numpy_policy, pretrained
 from mjx_push import config, control_law, mask_geometry, scene
 
 n = scene.IMAGE_SIZE

@@ -1,6 +1,6 @@
 """The mask autoencoder (mjx_push/encoder.py), its trainer (train/encoder_training.py) and the shipped weights."""
 
-import train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
+import mjx_push.train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
 
 import jax
 import jax.numpy as jnp
@@ -9,7 +9,7 @@ import pytest
 
 from mjx_push import encoder as enc
 from mjx_push import scene
-from train.encoder_training import EncoderTrainConfig, loss_fn
+from mjx_push.train.encoder_training import EncoderTrainConfig, loss_fn
 
 
 @pytest.fixture(scope="module")
@@ -102,7 +102,7 @@ def test_bad_training_settings_are_named():
 def test_yaw_targets_and_loss():
     """The auxiliary orientation loss: face yaw (4 yaw) for every cuboid, the long side (2 yaw) only for
     rectangular ones, nothing for cylinders; zero for a head that predicts the targets."""
-    from train.encoder_training import yaw_loss, yaw_targets
+    from mjx_push.train.encoder_training import yaw_loss, yaw_targets
 
     is_box = jnp.array([True, True, False])
     yaw = jnp.array([jnp.pi / 8, jnp.pi / 4, 0.3])
@@ -132,7 +132,7 @@ def test_yaw_weight_trains_the_encoder_through_the_head():
     encoder's mean path (its gradient there differs from the pixel loss alone)."""
     import optax
 
-    from train.encoder_training import init_yaw_head, make_step
+    from mjx_push.train.encoder_training import init_yaw_head, make_step
 
     cfg = EncoderTrainConfig(steps=1, batch_size=4, yaw_weight=10.0)
     state = {"vae": enc.init_vae(jax.random.PRNGKey(0)), "yaw_head": init_yaw_head(jax.random.PRNGKey(1))}

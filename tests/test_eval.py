@@ -1,7 +1,8 @@
-"""The evaluation protocol (train/evaluate.py), the report (train/report.py) and `mjx-push eval`."""
+"""The evaluation protocol (train/evaluate.py), the report (train/comparison/report.py) and `mjx-push eval`."""
 
-import train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
+import mjx_push.train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
 
+import dataclasses
 import json
 import shlex
 import math
@@ -13,10 +14,11 @@ import pytest
 
 from mjx_push import scene
 from tests.helpers import B, HOME_XY, a_s_for, action_for, make_params
-from train import report
-from export.cli import main as cli_main
-from train.evaluate import EvalSpec, evaluator_for, sem, summarize
-from train.policies import Policy
+from mjx_push.train.comparison import report
+from mjx_push.cli import main as cli_main
+from mjx_push.train.evaluate import evaluator_for, sem, summarize
+from mjx_push.train.episodes import EvalSpec
+from mjx_push.train.runs.policies import Policy
 
 
 # --- arithmetic ---------------------------------------------------------------------------------------
@@ -86,9 +88,9 @@ def test_eval_cli_reports_bad_input_in_the_users_words(tmp_path, capsys):
 def test_eval_and_deploy_share_options_and_defaults():
     import dataclasses as dc
 
-    from export.cli import Deploy
-    from train.cli import Eval
-    from train.eval_options import EvalOptions
+    from mjx_push.cli import Deploy
+    from mjx_push.cli import Eval
+    from mjx_push.cli.options import EvalOptions
 
     shared = {f.name: (f.type, f.default) for f in dc.fields(EvalOptions)}
     for cmd in (Eval, Deploy):
@@ -158,10 +160,10 @@ def evaluator(tiny_egru_run):
 
 def test_the_same_seeds_give_the_same_episodes_to_every_policy(tiny_egru_run, evaluator):
     cfg, d, _, state = tiny_egru_run
-    from train import policies
+    from mjx_push.train.runs import policies
 
     trained = policies.load_policy(d / "best_policy")
-    from train.networks import make_networks
+    from mjx_push.train.networks import make_networks
 
     other_actor = make_networks(cfg.train.agent).init_actor(jax.random.PRNGKey(99), cfg.env.episode_length)
     other = Policy(cfg, other_actor, trained.encoder_params, {})
@@ -194,7 +196,7 @@ def test_the_same_seeds_give_the_same_episodes_to_every_policy(tiny_egru_run, ev
 
 def test_report_end_to_end_from_a_trained_checkpoint(tiny_egru_run, evaluator, tmp_path):
     cfg, d, _, _ = tiny_egru_run
-    from train import policies
+    from mjx_push.train.runs import policies
 
     policy = policies.load_policy(d / "best_policy")
     results = {}
@@ -236,7 +238,7 @@ def test_friction_force_samplers_differ_as_in_the_paper():
 
 @pytest.mark.renderer
 def test_eval_cli_writes_json_and_a_video(tiny_egru_run, tmp_path):
-    from export.cpu_env import renderer_available
+    from mjx_push.export.cpu_env import renderer_available
 
     if not renderer_available():
         pytest.skip("MuJoCo's offscreen renderer (EGL) is not available on this machine")
@@ -289,33 +291,34 @@ def test_eval_cli_writes_json_and_a_video(tiny_egru_run, tmp_path):
 
 
 # --- reproduce: reuse, cached evaluations, worker processes -------------------------------------------
-def _reproduce_tiny(out, cfg, agents=("egru",), **kw) -> str:
+def _reproduce_tiny(out, cfg, agents=("egru",), teacher_free=None, report_only=False) -> str:
     """`reproduce` with every agent at the tiny run's configuration `cfg`: cylinders only, 2 episodes, no
     expert row (tests/test_expert.py has it). Returns its log."""
-    from train import reproduce as rep
+    from mjx_push.train.comparison import reproduce as rep
+    from mjx_push.train.comparison.study import Study
 
     lines: list[str] = []
-    rep.reproduce(
+    study = Study(
         "smoke",
-        1,
         out,
         episodes=2,
         agents=agents,
         shapes=("cylinder",),
-        log=lines.append,
+        teacher_free=teacher_free,
         config_hook=lambda _: cfg,
-        expert=False,
-        **kw,
     )
+    rep.reproduce(study, log=lines.append, expert=False, report_only=report_only)
     return "\n".join(lines)
 
 
 def test_reproduce_reuses_the_run_and_caches_each_evaluation(tiny_egru_run, evaluator, tmp_path):
     import shutil
 
-    from train import reproduce as rep
-    from train import policies
-    from train.networks import make_networks
+    from mjx_push.train.comparison import reproduce as rep
+    from mjx_push.train.comparison.cache import policy_fingerprint, scored_policy
+    from mjx_push.train.comparison.study import Study
+    from mjx_push.train.runs import policies
+    from mjx_push.train.networks import make_networks
 
     cfg, d, _, _ = tiny_egru_run
     out = tmp_path / "repro"
@@ -330,9 +333,9 @@ def test_reproduce_reuses_the_run_and_caches_each_evaluation(tiny_egru_run, eval
     assert "reusing finished run" in log and "reusing evaluation" not in log
     cache = run_dir / "eval-difficult-cylinder-2.json"
     rec = json.loads(cache.read_text())
-    name, step = rep.scored_policy(run_dir)
+    name, step = scored_policy(run_dir)
     assert rec["policy"] == name and rec["policy_env_steps"] == step
-    assert rec["policy_sha256"] == rep.policy_fingerprint(run_dir / name) and len(rec["per_episode"]["reward"]) == 2
+    assert rec["policy_sha256"] == policy_fingerprint(run_dir / name) and len(rec["per_episode"]["reward"]) == 2
     text = (out / "report.md").read_text()
     assert "| cylinder | eGRU |" in text
     # The training section comes from the run's metrics.csv: its evaluations and its cost.
@@ -361,7 +364,7 @@ def test_reproduce_reuses_the_run_and_caches_each_evaluation(tiny_egru_run, eval
     assert list(results["combined"]) == ["egru"] and results["meta"]["missing_runs"] == ["vpm-s0"]
     assert "Not finished when this report was built, so not in it: vpm-s0." in (out / "report.md").read_text()
     with pytest.raises(ValueError, match="no finished run"):
-        rep.reproduce("smoke", 1, tmp_path / "empty", episodes=2, agents=("vpm",), report_only=True, expert=False)
+        rep.reproduce(Study("smoke", tmp_path / "empty", episodes=2, agents=("vpm",)), report_only=True, expert=False)
 
     # New weights under the same name: the cached evaluation no longer belongs to them.
     policy = policies.load_policy(run_dir / name)
@@ -381,10 +384,10 @@ def test_reproduce_teacher_free_forks_each_finished_run_and_reports_the_forks(
     the run (a real fork costs a compilation here; tests/test_run.py trains real forks)."""
     import shutil
 
-    from train import presets
-    from train import reproduce as rep
-    from train import run as run_mod
-    from train.fork import ForkSource
+    from mjx_push.train import presets
+    from mjx_push.train.comparison.study import teacher_free_config
+    from mjx_push.train.runs import run as run_mod
+    from mjx_push.train.runs.fork import ForkSource
 
     cfg, d, _, _ = tiny_egru_run
     out = tmp_path / "repro"
@@ -405,7 +408,7 @@ def test_reproduce_teacher_free_forks_each_finished_run_and_reports_the_forks(
 
     log = go()
     fork = out / "teacher-free" / "runs" / "egru-s0"
-    assert calls == [(rep.teacher_free_config(cfg, 6), fork, False, ForkSource(base))]
+    assert calls == [(teacher_free_config(cfg, 6), fork, False, ForkSource(base))]
     assert f"reusing finished run {base}" in log and f"forking {base} at its last checkpoint into {fork}" in log
     assert (fork / "eval-difficult-cylinder-2.json").is_file() and not (
         base / "eval-difficult-cylinder-2.json"
@@ -428,11 +431,12 @@ def test_reproduce_teacher_free_forks_each_finished_run_and_reports_the_forks(
 
 
 def test_teacher_free_config_anneals_after_the_budget_and_refuses_what_it_cannot_anneal(tmp_path, capsys):
-    from train import configio, presets
-    from train import reproduce as rep
+    from mjx_push.train import configio, presets
+    from mjx_push.train.comparison import reproduce as rep
+    from mjx_push.train.comparison.study import Study, budget_config, teacher_free_config
 
-    cfg = rep.budget_config("cpu-long", "egru", 1)
-    tf = rep.teacher_free_config(cfg, 32000)  # docs/learners.md's recipe, from the budget's own end
+    cfg = budget_config("cpu-long", "egru", 1)
+    tf = teacher_free_config(cfg, 32000)  # docs/learners.md's recipe, from the budget's own end
     assert sorted(configio.differences(presets.config_dict(cfg), presets.config_dict(tf))) == [
         "train.demo.anneal_end: None != 80000",
         "train.demo.anneal_start: None != 64000",
@@ -440,8 +444,13 @@ def test_teacher_free_config_anneals_after_the_budget_and_refuses_what_it_cannot
         f"train.sac.anchor_weight: 0.0 != {cfg.train.sac.bc_weight}",
     ]
     assert tf.train.demo.teacher_scale(80000) == 0 and tf.train.demo.teacher_scale(64000) == 1
-    assert rep.run_dir_of(tmp_path, "vpm", 2, 32000) == tmp_path / "teacher-free" / "runs" / "vpm-s2"
-    line = rep.plan("cpu-long", 1, tmp_path, ("vpm",), teacher_free=32000)[0]
+    study = Study("cpu-long", tmp_path, agents=("vpm",), teacher_free=32000)
+    assert study.job_config("vpm", 2) == (
+        teacher_free_config(budget_config("cpu-long", "vpm", 2), 32000),
+        tmp_path / "teacher-free" / "runs" / "vpm-s2",
+    )
+    assert study.run_dir("vpm", 2) == tmp_path / "runs" / "vpm-s2"  # the budget's run, forked
+    line = rep.plan(study)[0]
     assert line == f"mjx-push reproduce --budget cpu-long --out {tmp_path} --teacher-free 32000 --job vpm:0"
     args = ["reproduce", "--budget", "cpu-long", "--plan", str(tmp_path / "p.txt"), "--teacher-free"]
     for bad, says in (
@@ -463,7 +472,7 @@ def test_teacher_free_config_anneals_after_the_budget_and_refuses_what_it_cannot
 def test_scored_policy_replays_the_selection_rule_over_the_runs_evaluations(tmp_path):
     """A run trained under the old strict tie rule saved its first of several tied actors as best; the
     table must score the actor the current rule keeps (the final one), and say so when none holds it."""
-    from train.reproduce import scored_policy
+    from mjx_push.train.comparison.cache import scored_policy
 
     cols = "env_steps,iteration_s,updates,eval/mean_reward,eval/success_rate\n"
 
@@ -493,7 +502,7 @@ def test_run_jobs_uses_worker_processes_keeps_order_and_names_a_failure():
     import os
 
     from tests.job_fns import pid_and_square
-    from train.reproduce import run_jobs
+    from mjx_push.train.comparison.jobs import run_jobs
 
     calls = [((x,), {}) for x in (3, 1, 2)]
     out = run_jobs(pid_and_square, calls, jobs=2)
@@ -507,9 +516,10 @@ def test_run_jobs_uses_worker_processes_keeps_order_and_names_a_failure():
 
 
 def test_reproduce_plan_lists_one_command_per_job_then_the_report(tmp_path, capsys):
-    from train import reproduce as rep
+    from mjx_push.train.comparison import reproduce as rep
+    from mjx_push.train.comparison.study import Study
 
-    lines = rep.plan("cpu-long", 2, tmp_path, ("vpm", "egru"))
+    lines = rep.plan(Study("cpu-long", tmp_path, seeds=2, agents=("vpm", "egru")))
     base = f"mjx-push reproduce --budget cpu-long --out {tmp_path}"
     assert lines == [
         f"{base} --job vpm:0",
@@ -549,9 +559,9 @@ def test_reproduce_plan_lists_one_command_per_job_then_the_report(tmp_path, caps
 def test_reproduce_restarts_a_run_killed_before_its_first_checkpoint(tmp_path, monkeypatch):
     """A run stopped in its first batches (logs, no checkpoint) has nothing to resume: reproduce starts
     it again instead of failing on a directory that "already holds a run"."""
-    from train import presets
-    from train import reproduce as rep
-    from train import run as run_mod
+    from mjx_push.train import presets
+    from mjx_push.train.comparison import reproduce as rep
+    from mjx_push.train.runs import run as run_mod
 
     cfg = presets.make("vpm", "smoke")
     run_dir = tmp_path / "runs" / "vpm-s0"
@@ -567,17 +577,21 @@ def test_reproduce_restarts_a_run_killed_before_its_first_checkpoint(tmp_path, m
 def test_reproduce_cpu_evaluates_each_run_on_its_mjx_episodes_and_caches_it(tiny_egru_run, evaluator, tmp_path):
     import shutil
 
-    from export.report_parity import cpu_evaluation, parity_report
-    from train import reproduce as rep
+    from mjx_push.export.report_parity import cpu_evaluation, parity_report
+    from mjx_push.train.comparison import reproduce as rep
+    from mjx_push.train.comparison.study import Study
 
     cfg, d, _, _ = tiny_egru_run
     out = tmp_path / "repro"
     run_dir = out / "runs" / "egru-s0"
     shutil.copytree(d, run_dir)
-    rep.agent_job("smoke", "egru", 0, out, 2, ("cylinder",), "difficult", config_hook=lambda _: cfg, train=False)
+    total = cfg.train.loop.total_env_steps
+    # The tiny run's length, so the parity report counts it as finished (the hook is the tests' only).
+    study = Study("smoke", out, episodes=2, shapes=("cylinder",), total_env_steps=total, config_hook=lambda _: cfg)
+    rep.agent_job(study, "egru", 0, train=False)
     mjx = json.loads((run_dir / "eval-difficult-cylinder-2.json").read_text())
     lines: list[str] = []
-    path = parity_report(out, [("egru", 0), ("vpm", 0)], ("cylinder",), "difficult", 2, ("analytic",), lines.append)
+    path = parity_report(study, [("egru", 0), ("vpm", 0)], ("analytic",), lines.append)
     cpu = json.loads((run_dir / "eval-cpu-analytic-difficult-cylinder-2.json").read_text())
     # The CPU run meets the MJX evaluation's episodes, and its agreement reads both runs' outcomes.
     np.testing.assert_allclose(
@@ -595,17 +609,9 @@ def test_reproduce_cpu_evaluates_each_run_on_its_mjx_episodes_and_caches_it(tiny
     with pytest.raises(ValueError, match="no MJX evaluation to compare with"):
         cpu_evaluation(run_dir, "difficult", "square", 2, "analytic")
     with pytest.raises(ValueError, match="no finished run"):
-        parity_report(out, [("vpm", 0)], ("cylinder",), "difficult", 2, ("analytic",))
+        parity_report(study, [("vpm", 0)], ("analytic",))
     with pytest.raises(ValueError, match="no finished run"):  # a total the run has not been trained to
-        parity_report(
-            out,
-            [("egru", 0)],
-            ("cylinder",),
-            "difficult",
-            2,
-            ("analytic",),
-            total_env_steps=cfg.train.loop.total_env_steps + 1,
-        )
+        parity_report(dataclasses.replace(study, total_env_steps=total + 1), [("egru", 0)], ("analytic",))
 
 
 def test_reproduce_cpu_refuses_what_it_cannot_evaluate(tmp_path, capsys):
@@ -619,15 +625,17 @@ def test_reproduce_cpu_refuses_what_it_cannot_evaluate(tmp_path, capsys):
 def test_reproduce_set_changes_every_agent_and_the_expert_and_its_plan_carries_it(tmp_path, capsys):
     """`reproduce --set`: the comparison under a variant. Every agent's configuration and the expert's
     take the override, the plan's commands repeat it, and a bad one is refused before any work."""
-    from train import presets
-    from train import reproduce as rep
+    from mjx_push.train import presets
+    from mjx_push.train.comparison import reproduce as rep
+    from mjx_push.train.comparison.study import AGENTS, Study, budget_config
 
     overrides = presets.parse_overrides(["expert.hold_short=true", "env.substeps=[10,600]"])
-    for agent in rep.AGENTS:
-        cfg = rep.budget_config("cpu-long", agent, 1, overrides=overrides)
+    for agent in AGENTS:
+        cfg = budget_config("cpu-long", agent, 1, overrides=overrides)
         assert cfg.expert.hold_short is True and cfg.env.substeps == (10, 600) and cfg.train.agent.kind == agent
-    assert not rep.budget_config("cpu-long", "vpm", 0).expert.hold_short  # the budget's own expert otherwise
-    line = rep.plan("cpu-long", 1, tmp_path, ("vpm",), overrides=overrides)[0]
+        assert Study("cpu-long", tmp_path, overrides=overrides).config(agent, 1) == cfg
+    assert not budget_config("cpu-long", "vpm", 0).expert.hold_short  # the budget's own expert otherwise
+    line = rep.plan(Study("cpu-long", tmp_path, agents=("vpm",), overrides=overrides))[0]
     assert line.endswith(" --set expert.hold_short=true 'env.substeps=[10,600]' --job vpm:0")
     assert presets.parse_overrides(shlex.split(line.split(" --set ")[1])[:-2]) == overrides  # round trip
     plan_file = tmp_path / "plan.txt"
@@ -642,9 +650,10 @@ def test_reproduce_set_changes_every_agent_and_the_expert_and_its_plan_carries_i
 def test_reproduce_trains_a_finished_run_of_a_smaller_budget_longer(tmp_path, monkeypatch, capsys):
     """--total-env-steps above a finished run's: reproduce resumes that run for the longer total (the
     run itself: tests/test_run.py), reports only runs of that total, and its plan carries the flag."""
-    from train import presets
-    from train import reproduce as rep
-    from train import run as run_mod
+    from mjx_push.train import presets
+    from mjx_push.train.comparison import reproduce as rep
+    from mjx_push.train.comparison.study import Study, budget_config
+    from mjx_push.train.runs import run as run_mod
 
     cfg = presets.make("vpm", "smoke")
     run_dir = tmp_path / "runs" / "vpm-s0"
@@ -653,7 +662,7 @@ def test_reproduce_trains_a_finished_run_of_a_smaller_budget_longer(tmp_path, mo
     (run_dir / "summary.json").write_text("{}")
     (run_dir / "best_policy.msgpack").write_bytes(b"")
     total = cfg.train.loop.total_env_steps
-    longer = rep.budget_config("smoke", "vpm", 0, 2 * total)
+    longer = budget_config("smoke", "vpm", 0, 2 * total)
     assert longer.train.loop.total_env_steps == 2 * total
     assert rep.is_finished(run_dir) and rep.is_finished(run_dir, total) and not rep.is_finished(run_dir, 2 * total)
     calls = []
@@ -664,11 +673,10 @@ def test_reproduce_trains_a_finished_run_of_a_smaller_budget_longer(tmp_path, mo
     other = presets.with_overrides(longer, {"train.sac.lr": 3e-4})
     with pytest.raises(ValueError, match="another configuration"):
         rep.train_or_reuse(other, run_dir, lines.append)
+    study = Study("smoke", tmp_path, episodes=2, agents=("vpm",), total_env_steps=2 * total)
     with pytest.raises(ValueError, match="no finished run"):  # the run has not been trained longer yet
-        rep.reproduce(
-            "smoke", 1, tmp_path, episodes=2, agents=("vpm",), report_only=True, expert=False, total_env_steps=2 * total
-        )
-    assert rep.plan("cpu-long", 1, tmp_path, ("vpm",), total_env_steps=128000)[0] == (
+        rep.reproduce(study, report_only=True, expert=False)
+    assert rep.plan(Study("cpu-long", tmp_path, agents=("vpm",), total_env_steps=128000))[0] == (
         f"mjx-push reproduce --budget cpu-long --out {tmp_path} --total-env-steps 128000 --job vpm:0"
     )
     assert cli_main(["reproduce", "--total-env-steps", "0", "--plan", str(tmp_path / "p.txt")]) == 2

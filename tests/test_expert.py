@@ -1,7 +1,7 @@
 """The scripted expert (mjx_push/expert.py): its geometry and action inversion on known values, its
 success on evaluation episodes, and its baseline row in `mjx-push reproduce`."""
 
-import train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
+import mjx_push.train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
 
 import math
 
@@ -11,8 +11,9 @@ import pytest
 
 from mjx_push import expert
 from mjx_push.env import EnvConfig, decode_substeps
-from train import presets
-from train.evaluate import EvalSpec, ExpertPolicy, evaluate
+from mjx_push.train import presets
+from mjx_push.train.evaluate import ExpertPolicy, evaluate
+from mjx_push.train.episodes import EvalSpec
 
 
 def test_support_and_bounding_radius():
@@ -133,11 +134,13 @@ def test_expert_pushes_to_within_1_cm(expert_policy):
 
 
 def test_reproduce_has_an_expert_baseline_row(expert_policy, tmp_path):
-    from train.reproduce import expert_job
+    from mjx_push.train.comparison.reproduce import expert_job
+    from mjx_push.train.comparison.study import Study
 
     lines = []
-    first = expert_job("cpu", tmp_path, 4, ("cylinder",), "standard", log=lines.append)
-    again = expert_job("cpu", tmp_path, 4, ("cylinder",), "standard", log=lines.append)
+    study = Study("cpu", tmp_path, episodes=4, shapes=("cylinder",), setting="standard")
+    first = expert_job(study, log=lines.append)
+    again = expert_job(study, log=lines.append)
     assert first["cylinder"]["success"]["mean"] >= 0.75
     assert any("reusing evaluation" in line for line in lines)
     for metric, v in first["cylinder"].items():

@@ -1,5 +1,5 @@
-"""Exported policies (export.policy_file, export.numpy_policy, export.torch_policy), the export / deploy
-commands (export.cli) and the evaluation metrics (export.metrics). Networks are random-initialised, never
+"""Exported policies (mjx_push.export.policy_file, mjx_push.export.numpy_policy, mjx_push.export.torch_policy), the export / deploy
+commands (mjx_push.cli) and the evaluation metrics (mjx_push.export.metrics). Networks are random-initialised, never
 trained: the point is that every implementation computes the same function."""
 
 import importlib.metadata
@@ -16,18 +16,18 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from export import policy_file as pfile
-from export.cli import Deploy, Export
-from export.metrics import summarize_records
-from export.numpy_policy import NumpyPolicy, decode_substeps
+from mjx_push.export import policy_file as pfile
+from mjx_push.cli import Deploy, Export
+from mjx_push.export.metrics import summarize_records
+from mjx_push.export.numpy_policy import NumpyPolicy, decode_substeps
 from mjx_push import encoder as enc
 from mjx_push import mask_geometry, scene
 from mjx_push.env import EnvConfig
 from mjx_push.env import decode_substeps as jax_decode_substeps
-from train.config import AGENT_KINDS
-from train.networks import make_networks
-from train.presets import make
-from train.policies import Policy, save_policy
+from mjx_push.train.config import AGENT_KINDS
+from mjx_push.train.networks import make_networks
+from mjx_push.train.presets import make
+from mjx_push.train.runs.policies import Policy, save_policy
 from tests.helpers import a_s_for
 
 REPO = Path(__file__).resolve().parents[1]
@@ -148,7 +148,7 @@ def test_numpy_and_torch_match_jax_over_an_episode(kind, exported, jax_encode):
     np_int = NumpyPolicy.from_file(path)  # the same policy through act(): a_s decoded to substeps
     others = [np_policy]
     if HAVE_TORCH:
-        from export.torch_policy import TorchPolicy
+        from mjx_push.export.torch_policy import TorchPolicy
 
         others.append(TorchPolicy.from_file(path))
     geom = "box" if kind in ("vpm", "ugru") else "cylinder"
@@ -248,7 +248,7 @@ def test_substep_decoding_matches_the_environment():
 
 # --- the file format -------------------------------------------------------------------------------
 def test_the_numpy_side_knows_the_same_agent_kinds():
-    assert pfile.AGENT_KINDS == AGENT_KINDS  # export/policy_file.py cannot import train.config (JAX)
+    assert pfile.AGENT_KINDS == AGENT_KINDS  # export/policy_file.py cannot import mjx_push.train.config (JAX)
 
 
 def test_metadata_record(exported):
@@ -364,7 +364,7 @@ def _acts_without_jax(path: Path) -> None:
     torch or MuJoCo."""
     code = (
         "import sys, numpy as np\n"
-        "from export.numpy_policy import NumpyPolicy\n"
+        "from mjx_push.export.numpy_policy import NumpyPolicy\n"
         f"p = NumpyPolicy.from_file({str(path)!r})\n"
         "m = np.zeros((64, 64), bool); m[20:30, 20:30] = True\n"
         "print(p.act(m, np.roll(m, 5, axis=0), np.array([0.4, 0.0])))\n"
@@ -385,7 +385,7 @@ def test_torch_missing_gives_an_install_hint(exported):
     code = (
         "import sys\n"
         "sys.modules['torch'] = None  # import torch now raises ImportError\n"
-        "from export.torch_policy import TorchPolicy\n"
+        "from mjx_push.export.torch_policy import TorchPolicy\n"
         "try:\n"
         f"    TorchPolicy.from_file({str(exported['vpm'][2])!r})\n"
         "except ImportError as e:\n"
@@ -399,8 +399,8 @@ def test_torch_missing_gives_an_install_hint(exported):
 def test_torch_module_batches_like_the_numpy_policy(exported):
     import torch
 
-    from export.policy_file import load_npz
-    from export.torch_policy import build_net
+    from mjx_push.export.policy_file import load_npz
+    from mjx_push.export.torch_policy import build_net
 
     pf = load_npz(exported["stacked"][2])
     net = build_net(pf)
@@ -450,7 +450,7 @@ def test_export_command_from_a_run_directory(exported, tmp_path):
 
 def test_deploy_command_writes_the_metrics_of_evals_episodes(exported, tmp_path):
     # a_s pinned at -1 (the shortest steps) keeps the simulated episodes short.
-    from train.evaluate import EvalSpec, episode_objects
+    from mjx_push.train.episodes import EvalSpec, episode_objects
 
     policy = exported["egru"][0]
     actor = jax.tree.map(lambda v: v, policy.actor_params)
@@ -570,8 +570,8 @@ def test_loading_a_package_referencing_file_never_imports_jax(package_exported):
 
 
 def test_pretrained_names_resolve_for_eval_and_deploy(package_exported, tmp_path, monkeypatch):
-    from export import pretrained
-    from export.cli import Eval
+    from mjx_push.cli.options import resolve_policy  # what `mjx-push eval POLICY` reads POLICY with
+    from mjx_push.export import pretrained
 
     with pytest.raises(ValueError, match="unknown pretrained policy 'pretrained:egru': this mjx-push ships none"):
         pretrained.resolve("pretrained:egru", tmp_path)
@@ -585,7 +585,7 @@ def test_pretrained_names_resolve_for_eval_and_deploy(package_exported, tmp_path
         ValueError, match="unknown pretrained policy 'pretrained:vpm': this mjx-push ships pretrained:egru"
     ):
         pretrained.resolve("pretrained:vpm")
-    policy = Eval(policy=Path("pretrained:egru")).resolve(Path("pretrained:egru"))
+    policy = resolve_policy(Path("pretrained:egru"))
     assert policy.config.agent == "egru"
     np.testing.assert_array_equal(
         policy.actor_params["params"]["mean_head"]["kernel"],
@@ -599,7 +599,7 @@ def test_pretrained_names_resolve_for_eval_and_deploy(package_exported, tmp_path
 def test_the_shipped_policies_load_act_and_name_their_origin():
     """Every policy in export/pretrained_policies/ is a package-encoder file of its agent kind that
     loads with NumPy and acts, and names the run, budget, seed and commit that trained it."""
-    from export import pretrained
+    from mjx_push.export import pretrained
 
     ships = pretrained.available()
     assert ships and set(ships) <= set(AGENT_KINDS), ships

@@ -1,4 +1,4 @@
-"""The Gymnasium environment "MjxPush-v0" (export.gym_env) and Stable-Baselines3 on it: registration,
+"""The Gymnasium environment "MjxPush-v0" (mjx_push.export.gym_env) and Stable-Baselines3 on it: registration,
 Gymnasium's and SB3's checkers through `gymnasium.make` (on a headless machine too), goals and rewards,
 and SB3's hindsight relabelling with its default settings checked against the simulator's ground truth."""
 
@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
-import export  # noqa: F401  (registers MjxPush-v0)
-from export.cpu_env import CpuPushEnv
+import mjx_push.export  # noqa: F401  (registers MjxPush-v0)
+from mjx_push.export.cpu_env import CpuPushEnv
 from tests.helpers import renderer_or_skip
-from export.gym_env import MjxPushGymEnv, split_observation
+from mjx_push.export.gym_env import MjxPushGymEnv, split_observation
 from mjx_push import scene
 from mjx_push.env import EnvConfig
 

@@ -1,13 +1,13 @@
 """Learner configuration (train/config.py): defaults and validation messages."""
 
-import train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
+import mjx_push.train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
 
 import dataclasses
 
 import jax.numpy as jnp
 import pytest
 
-from train.config import AgentConfig, DemoConfig, LoopConfig, ReplayConfig, SACConfig, TrainConfig
+from mjx_push.train.config import AgentConfig, DemoConfig, LoopConfig, ReplayConfig, SACConfig, TrainConfig
 
 
 def test_defaults_are_the_paper_budget():
@@ -149,7 +149,7 @@ def test_paper_values_stay_the_field_defaults():
 
 
 def test_the_task_facts_are_set_once_on_the_environment():
-    from train import presets
+    from mjx_push.train import presets
 
     base = presets.make("vpm", "cpu")
     cfg = presets.with_overrides(base, {"env.episode_length": 30, "env.success_tau": 0.05})
@@ -165,8 +165,8 @@ def test_the_task_facts_are_set_once_on_the_environment():
 def test_the_teacher_free_preset_is_cpu_long_then_the_teacher_annealed_away():
     """The comparison's recipe in one run: cpu-long's settings for its 64,000 env steps, then the
     cloning weight, the expert's share and the anchor on their schedule, by configuration alone."""
-    from train import configio, presets
-    from train.loop import spread_envs
+    from mjx_push.train import configio, presets
+    from mjx_push.train.loop import spread_envs
 
     for agent in ("vpm", "egru"):
         recipe, long = presets.make(agent, "teacher-free"), presets.make(agent, "cpu-long")

@@ -2,7 +2,7 @@
 with a Q-filter, target clipping, the success-radius curriculum, demonstrations in replay), each on
 small inputs with known answers, and the whole set learning the toy task."""
 
-import train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
+import mjx_push.train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
 
 import dataclasses
 
@@ -11,11 +11,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from train import normalizer, replay
-from train.config import AgentConfig, DemoConfig, LoopConfig, ReplayConfig, SACConfig, TrainConfig
-from train.loop import Runner, make_train, spread_envs, train as run_train
-from train.networks import make_networks
-from train.sac import bc_loss_value, make_actor_loss, make_critic_loss
+from mjx_push.train import normalizer, replay
+from mjx_push.train.config import AgentConfig, DemoConfig, LoopConfig, ReplayConfig, SACConfig, TrainConfig
+from mjx_push.train.loop import Runner, make_train, spread_envs, train as run_train
+from mjx_push.train.networks import make_networks
+from mjx_push.train.sac import bc_loss_value, make_actor_loss, make_critic_loss
 from tests.toy import make_toy
 
 T = 6
@@ -260,8 +260,8 @@ def test_expert_demonstrates_every_shape_group_of_the_pushing_batch():
     """The `cpu` preset's batch lays out 16 cuboids then 16 cylinders: the expert's 8 environments are
     4 of each, and so is the agent's own share (12 + 12). Nothing is compiled here."""
     from mjx_push import encoder as enc
-    from train import presets
-    from train.push_task import make_push_adapter
+    from mjx_push.train import presets
+    from mjx_push.train.push_task import make_push_adapter
 
     cfg = presets.make("vpm", "cpu")
     runner = Runner(make_train(cfg.train, make_push_adapter(cfg.env, enc.load(None))))
@@ -275,9 +275,9 @@ def test_in_run_evaluations_of_every_agent_share_the_protocol_episodes():
     poses and goals: the protocol's episodes of loop.eval_setting / loop.eval_seed, cuboids on the even
     indices and cylinders on the odd ones, as `mjx-push eval` draws them."""
     from mjx_push import encoder as enc
-    from train import presets
-    from train.evaluate import EvalSpec, episode_objects
-    from train.push_task import make_push_adapter
+    from mjx_push.train import presets
+    from mjx_push.train.episodes import EvalSpec, episode_objects
+    from mjx_push.train.push_task import make_push_adapter
 
     chunks = {}
     for agent in ("vpm", "egru"):

@@ -4,7 +4,7 @@ The learning tests are the end-to-end check of SAC + HER: a VPM and a GRU agent 
 deterministic success on the toy goal-reaching task within about a minute of CPU each.
 """
 
-import train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
+import mjx_push.train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
 
 import time
 
@@ -13,9 +13,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from train.config import AgentConfig, LoopConfig, ReplayConfig, SACConfig, TrainConfig
-from train.adapter import EnvAdapter
-from train.loop import Runner, make_train, train as run_train
+from mjx_push.train.config import AgentConfig, LoopConfig, ReplayConfig, SACConfig, TrainConfig
+from mjx_push.train.adapter import EnvAdapter
+from mjx_push.train.loop import Runner, make_train, train as run_train
 from tests.toy import make_toy
 
 TAU = 0.025  # toy success radius (the real task's is 0.01)

@@ -1,6 +1,6 @@
 """Feature extractors, actor and twin critic (train/networks.py)."""
 
-import train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
+import mjx_push.train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
 
 import flax.linen as nn
 import jax
@@ -8,9 +8,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from train import replay
-from train.config import AgentConfig, ReplayConfig
-from train.networks import make_networks, squash
+from mjx_push.train import replay
+from mjx_push.train.config import AgentConfig, ReplayConfig
+from mjx_push.train.networks import make_networks, squash
 
 KINDS = ["vpm", "stacked", "ugru"]
 B, T = 3, 7

@@ -1,14 +1,14 @@
 """Episode ring buffer and HER "future" relabelling (train/replay.py)."""
 
-import train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
+import mjx_push.train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from train import replay
-from train.config import ReplayConfig
+from mjx_push.train import replay
+from mjx_push.train.config import ReplayConfig
 
 T = 8
 TAU = 0.05

@@ -6,7 +6,7 @@ A stub "network" makes every number computable by hand:
 The worked numbers are in the comments next to each expectation.
 """
 
-import train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
+import mjx_push.train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
 
 import math
 
@@ -15,9 +15,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from train.config import AgentConfig, SACConfig
-from train.networks import make_networks
-from train.sac import (
+from mjx_push.train.config import AgentConfig, SACConfig
+from mjx_push.train.networks import make_networks
+from mjx_push.train.sac import (
     SACState,
     actor_loss_value,
     alpha_loss,
@@ -217,8 +217,8 @@ def test_lr_decays_linearly_to_zero(real_update):
 def test_the_shared_actor_pass_gives_the_two_pass_update(kind):
     """One pass of the actor's extractor for the critic's target and the actor's loss, its gradient
     carried back by a VJP, is the same step as two passes (cloning and anchor terms included)."""
-    from train.networks import make_networks
-    from train.sac import init_state
+    from mjx_push.train.networks import make_networks
+    from mjx_push.train.sac import init_state
 
     agent = AgentConfig(kind, hidden=(16, 16), gru_hidden=8, obs_norm=True)
     cfg = SACConfig(batch_size=8, bc_weight=1.0, q_filter=False, anchor_weight=1.0)

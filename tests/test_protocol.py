@@ -9,9 +9,9 @@ import json
 import numpy as np
 import pytest
 
-from train import comparison_tables as ct
-from train import protocol as proto
-from export.cli import main as cli_main
+from mjx_push.train.comparison import tables as ct
+from mjx_push.train.comparison import protocol as proto
+from mjx_push.cli import main as cli_main
 
 SHAPES = ["cylinder", "square"]
 
@@ -52,7 +52,7 @@ def _per_episode(success):
 def stand_ins(monkeypatch):
     """Training writes what a finished run leaves; evaluation the cache a real one writes, recording the
     policy and spec it was asked for."""
-    from train.evaluate import summarize
+    from mjx_push.train.evaluate import summarize
 
     calls = {"train": [], "eval": [], "fail": set()}
 
@@ -126,7 +126,7 @@ def test_plan_lists_every_run_seed_major_then_the_expert_and_the_tables(tmp_path
         f"{base} --job vpm:1",
         f"{base} --job egru:1",
         f"{base} --job expert",
-        f"python -m train.comparison_tables {folder} --write",
+        f"python -m mjx_push.train.comparison.tables {folder} --write",
     ]
 
 

@@ -1,7 +1,7 @@
-"""Training runs on disk (train/run.py) on the toy task: exact resume from orbax checkpoints, clear
+"""Training runs on disk (train/runs/run.py) on the toy task: exact resume from orbax checkpoints, clear
 errors for corrupt or mismatched checkpoints and policies, logs and saved policies."""
 
-import train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
+import mjx_push.train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
 
 import csv
 import dataclasses
@@ -17,10 +17,11 @@ import jax
 import numpy as np
 import pytest
 
-from train import run as run_mod
-from train import checkpoints
-from train import policies
-from export.cli import main as cli_main
+from mjx_push.train.runs import run as run_mod
+from mjx_push.train.runs import checkpoints
+from mjx_push.train.runs import policies
+from mjx_push.cli import main as cli_main
+from mjx_push.train.runs.fork import check_fork
 from tests.toy import make_toy
 
 from tests.helpers import TOY_TAU as TAU
@@ -292,7 +293,7 @@ def test_train_command_stops_on_signals_and_says_how_to_resume(full_run, monkeyp
 
 
 def test_a_second_signal_interrupts_at_once():
-    from train.interrupt import StopOnSignal
+    from mjx_push.train.runs.signals import StopOnSignal
 
     before = signal.getsignal(signal.SIGTERM)
     with StopOnSignal() as stop:
@@ -329,7 +330,7 @@ def test_kill_9_while_a_checkpoint_is_written_resumes_to_the_same_result(full_ru
 
 
 def test_two_runs_into_one_directory_are_refused(tmp_path, toy, encoder_file):
-    from train.run_lock import RunLock
+    from mjx_push.train.runs.lock import RunLock
 
     d = tmp_path / "busy"
     d.mkdir()
@@ -369,7 +370,7 @@ def test_cli_shows_a_bug_with_its_traceback_and_bad_input_as_one_line(monkeypatc
     """Only ConfigError (the user's input) becomes exit status 2; any other error, a ValueError from a
     bug included, propagates so its traceback shows."""
     from mjx_push.errors import ConfigError
-    from train.cli import Demo
+    from mjx_push.cli import Demo
 
     def bug(self):
         raise ValueError("operands could not be broadcast together")  # what a shape bug raises
@@ -387,7 +388,7 @@ def test_cli_shows_a_bug_with_its_traceback_and_bad_input_as_one_line(monkeypatc
 
 
 def test_success_tau_sets_the_environment_and_the_relabelling_radius():
-    from train.cli import Train
+    from mjx_push.cli import Train
 
     cfg = Train(agent="vpm", preset="reference", success_tau=0.05).config()
     assert cfg.env.success_tau == cfg.train.replay.success_tau == 0.05
@@ -395,7 +396,7 @@ def test_success_tau_sets_the_environment_and_the_relabelling_radius():
 
 
 def test_set_overrides_any_field_by_its_config_path(capsys):
-    from train.cli import Train
+    from mjx_push.cli import Train
 
     cfg = Train(
         agent="vpm",
@@ -428,8 +429,8 @@ def test_progress_lines_report_success_reward_and_final_distance():
 
     from rich.console import Console
 
-    from train.config import LoopConfig
-    from train.progress import TrainProgress
+    from mjx_push.train.config import LoopConfig
+    from mjx_push.cli.progress import TrainProgress
 
     out = io.StringIO()
     m = {
@@ -465,7 +466,7 @@ def _tree_snapshot(d: Path) -> dict:
 def test_a_fork_starts_from_the_checkpoint_with_new_settings_and_resumes_exactly(full_run, tmp_path, toy):
     """`fork`: the source's state at the checkpoint, its own best actor, anchor and random numbers,
     env steps counted on, the source untouched; an interrupted fork resumes to the uninterrupted one."""
-    from train.fork import ForkSource
+    from mjx_push.train.runs.fork import ForkSource
 
     cfg, d, _, _ = full_run
     fcfg = _forked_config(cfg)
@@ -505,7 +506,7 @@ def test_a_fork_starts_from_the_checkpoint_with_new_settings_and_resumes_exactly
 
 
 def test_a_fork_that_cannot_start_is_refused_before_anything_is_written(full_run, tmp_path, toy):
-    from train.fork import ForkSource
+    from mjx_push.train.runs.fork import ForkSource
 
     cfg, d, _, _ = full_run
     f = tmp_path / "fork"
@@ -532,6 +533,8 @@ def test_train_command_forks_a_run_with_the_options_given(full_run, tmp_path, mo
 
     def forked_run(cfg, run_dir, **kwargs):
         seen.update(cfg=cfg, run_dir=run_dir, **kwargs)
+        step, changes = check_fork(kwargs["fork"], cfg)  # as the run does before it calls on_start
+        kwargs["on_start"](run_mod.Start(step, tuple(changes)))
         return {"best_eval_mean_reward": -1.0, "best_eval_success_rate": 1.0, "best_env_steps": 240}, None
 
     monkeypatch.setattr(run_mod, "run", forked_run)
@@ -542,8 +545,8 @@ def test_train_command_forks_a_run_with_the_options_given(full_run, tmp_path, mo
     assert seen["fork"].run_dir == d and seen["fork"].env_steps == 160 and seen["run_dir"] == Path(f"{d}-fork")
     assert seen["cfg"] == _forked_config(cfg, seed=3)  # the source's configuration, changed by the options
     assert "forked from" in out and "train.demo.anneal_start: None != 200" in out
-    # Bad combinations: a clear message each, nothing run.
-    seen.clear()
+    # Bad combinations: a clear message each (from the command or from the run's own checks), nothing run.
+    monkeypatch.undo()
     bad = [
         (["train", "--fork-step", "160"], "pass --fork-from too"),
         (["train", "--fork-from", str(d), "--resume", "--run-dir", str(tmp_path)], "pass one of them"),
@@ -553,4 +556,4 @@ def test_train_command_forks_a_run_with_the_options_given(full_run, tmp_path, mo
     for argv, message in bad:
         assert cli_main(argv) == 2, argv
         assert message in capsys.readouterr().err
-    assert not seen
+    assert not (tmp_path / "f").exists() and not list(tmp_path.iterdir())

@@ -1,4 +1,4 @@
-"""train.seed_stats: bootstrap intervals, IQM and probability of improvement over training seeds (NumPy
+"""mjx_push.train.comparison.seed_stats: bootstrap intervals, IQM and probability of improvement over training seeds (NumPy
 only, no JAX)."""
 
 import ast
@@ -8,8 +8,14 @@ import numpy as np
 import pytest
 import scipy.stats
 
-from train import seed_stats
-from train.seed_stats import aggregate, check_table, mean_difference, per_task_mean, probability_of_improvement
+from mjx_push.train.comparison import seed_stats
+from mjx_push.train.comparison.seed_stats import (
+    aggregate,
+    check_table,
+    mean_difference,
+    per_task_mean,
+    probability_of_improvement,
+)
 
 REPS = 500  # enough for stable percentiles in these checks, and fast
 

@@ -59,7 +59,7 @@ def test_agreement_counts_outcomes_correlation_and_parting():
 
 
 def test_agreement_by_shape_groups_episodes_and_refuses_unequal_runs():
-    from export.metrics import agreement_by_shape
+    from mjx_push.export.metrics import agreement_by_shape
 
     mjx = {"success": [1.0, 0.0, 1.0, 1.0], "final_distance": [0.005, 0.03, 0.008, 0.002]}
     cpu = [

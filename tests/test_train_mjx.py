@@ -1,7 +1,7 @@
 """End to end on the MJX scene: masks -> encoder -> SAC + HER -> checkpoint and policy, at a tiny size
 (2 environments, 3-step episodes) so that compilation, not simulation, is the cost."""
 
-import train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
+import mjx_push.train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
 
 import jax
 import jax.numpy as jnp
@@ -10,10 +10,10 @@ import pytest
 
 from mjx_push import encoder as enc
 from tests.helpers import tiny_run_config
-from train import run as run_mod
-from train import policies
-from train.config import LoopConfig
-from train.push_task import make_push_adapter
+from mjx_push.train.runs import run as run_mod
+from mjx_push.train.runs import policies
+from mjx_push.train.config import LoopConfig
+from mjx_push.train.push_task import make_push_adapter
 
 
 def test_egru_trains_on_the_pushing_scene(tiny_egru_run):
@@ -98,8 +98,8 @@ def test_the_actor_learns_the_experts_pushes_on_the_pushing_scene(encoder_file, 
     normalisation or the actor's updates stop carrying the signal."""
     import dataclasses
 
-    from train import presets
-    from train.loop import Runner, make_train
+    from mjx_push.train import presets
+    from mjx_push.train.loop import Runner, make_train
 
     base = presets.make("vpm", "cpu")
     T = 10  # the approach: the rod travels round the object to the push point
@@ -188,7 +188,7 @@ def test_the_actor_learns_the_experts_pushes_on_the_pushing_scene(encoder_file, 
     assert cos_after > 0.7 and cos_after > cos_before + 0.5
 
     # In-run evaluation runs the protocol's episodes through the same compiled rollout, in their order.
-    from train.evaluate import EvalSpec, episode_objects
+    from mjx_push.train.episodes import EvalSpec, episode_objects
 
     ev = runner.evaluate(untrained)
     loop = cfg.train.loop

@@ -8,7 +8,7 @@ import jax
 import pytest
 
 from mjx_push import xla
-from train import compile_cache
+from mjx_push.train import compile_cache
 
 
 def test_cpu_device_count_reads_the_override_and_rejects_nonsense(monkeypatch):
@@ -44,7 +44,7 @@ def test_importing_the_package_leaves_the_device_count_to_the_program():
     jax starts splits the CPU into the devices asked for, so no import may start the backend (a module-level
     jnp array would, and the command line's split would silently not happen)."""
     code = (
-        "import sys, mjx_push, jax, jax._src.xla_bridge as xb, export.cli, mjx_push.brax_env\n"
+        "import sys, mjx_push, jax, jax._src.xla_bridge as xb, mjx_push.cli, mjx_push.brax_env\n"
         "assert not xb.backends_are_initialized(), 'an import started the backend: too late to split'\n"
         "if sys.argv[1] == 'ask': assert mjx_push.xla.use_cpu_devices(3) == 3\n"
         "print(jax.device_count(), '--xla_cpu_use_fusion_emitters' in __import__('os').environ['XLA_FLAGS'])"

@@ -14,7 +14,7 @@ import flax.struct
 import jax
 import jax.numpy as jnp
 
-from train.adapter import EnvAdapter, SubstepScheduler, select_envs
+from mjx_push.train.adapter import EnvAdapter, SubstepScheduler, select_envs
 
 
 @flax.struct.dataclass

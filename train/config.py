@@ -14,6 +14,9 @@ import math
 from typing import Literal, get_args
 
 import jax.numpy as jnp
+
+from mjx_push.config import EnvConfig
+from mjx_push.expert import ExpertConfig
 from mjx_push.errors import ConfigError
 
 # The agent kinds, defined here once (the command line, the presets and reproduce take them from here;
@@ -27,7 +30,7 @@ CRITIC_OBS: tuple[str, ...] = ("actor", "privileged")
 # reads them).
 ActorLoss = Literal["sac", "bc"]
 ACTOR_LOSSES: tuple[str, ...] = get_args(ActorLoss)
-# The protocol's settings (train.evaluate) that in-run evaluations can score.
+# The protocol's settings (mjx_push.train.evaluate) that in-run evaluations can score.
 EvalSetting = Literal["standard", "difficult"]
 EVAL_SETTINGS: tuple[str, ...] = get_args(EvalSetting)
 
@@ -360,7 +363,7 @@ class LoopConfig:
     # In-run evaluations (and the best-actor selection) score the protocol's episodes of this setting,
     # drawn from eval_seed with uniform sampling whatever the agent trains on, so every agent and every
     # training seed is scored on the same objects. The seed differs from the protocol's test seed
-    # (train.evaluate.EvalSpec), so the actor a report scores was not selected on its episodes.
+    # (mjx_push.train.episodes.EvalSpec), so the actor a report scores was not selected on its episodes.
     eval_setting: EvalSetting = "standard"
     eval_seed: int = 2_000_003
     # Data-parallel devices (over every process of a multi-machine run, train/data_parallel.py): each
@@ -481,3 +484,39 @@ class TrainConfig:
                 f"at most loop.total_env_steps ({self.loop.total_env_steps})",
                 self.demo.anneal_end,
             )
+
+
+Preset = Literal["smoke", "cpu", "cpu-long", "teacher-free", "reference", "paper"]  # defined here once
+PRESETS: tuple[str, ...] = get_args(Preset)
+
+
+@dataclasses.dataclass(frozen=True)
+class RunConfig:
+    """A whole run: the agent, the preset it came from, the learner, the task, the encoder and the
+    scripted expert; a run's config.json holds every value (`mjx_push.train.presets.config_dict`)."""
+
+    agent: str
+    preset: str
+    train: TrainConfig
+    env: EnvConfig
+    # Encoder weights to train with (msgpack); None: the shipped pretrained encoder. Saved policies carry
+    # the weights themselves, so this is provenance once training is done.
+    encoder: str | None = None
+    expert: ExpertConfig = ExpertConfig()  # the scripted expert's settings (demonstrations, baseline)
+
+    def __post_init__(self):
+        if self.agent not in AGENT_KINDS:
+            raise ConfigError(f"agent must be one of {AGENT_KINDS}, got {self.agent!r}")
+        if self.preset not in PRESETS:
+            raise ConfigError(f"preset must be one of {PRESETS}, got {self.preset!r}")
+        if self.train.agent.kind != self.agent:
+            raise ConfigError(f"train.agent.kind ({self.train.agent.kind!r}) must equal agent ({self.agent!r})")
+        if self.train.loop.episode_len != self.env.episode_length:
+            raise ConfigError(
+                f"train.loop.episode_len ({self.train.loop.episode_len}) must equal env.episode_length "
+                f"({self.env.episode_length})"
+            )
+        if abs(self.train.replay.success_tau - self.env.success_tau) > 1e-12:
+            raise ConfigError("train.replay.success_tau must equal env.success_tau")
+        if self.env.objects.shape == "any" and self.train.loop.num_envs < 2:
+            raise ConfigError("train.loop.num_envs must be >= 2 with shape filter 'any' (one group per shape)")

@@ -71,7 +71,7 @@ def from_dict(cls, data: Any, where: str = ""):
 
 def trained_longer(saved: dict, new: dict) -> bool:
     """True when config dict `new` is `saved` with a larger ``train.loop.total_env_steps`` and nothing
-    else changed: the same run trained for more env steps (`train.run.run` continues it)."""
+    else changed: the same run trained for more env steps (`mjx_push.train.runs.run.run` continues it)."""
     try:
         old_total, new_total = (d["train"]["loop"]["total_env_steps"] for d in (saved, new))
     except (KeyError, TypeError):

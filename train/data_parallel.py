@@ -3,7 +3,7 @@
 With ``loop.data_parallel`` = D > 1, the trainer's pure functions (train/loop.py) are written for one
 device's share of the run: ``num_envs / D`` environments, a replay shard of ``1 / D`` of the capacity,
 ``1 / D`` of every update's batch, each gradient averaged over the mesh axis ``AXIS``
-(``train.sac.make_update``'s ``axis_name``). This module runs them with ``shard_map`` over a 1-D mesh
+(``mjx_push.train.sac.make_update``'s ``axis_name``). This module runs them with ``shard_map`` over a 1-D mesh
 of D devices, which spans every process once ``jax.distributed`` is initialised (``initialize``), so
 one program drives a laptop's host devices, a node of GPUs or a cluster alike.
 
@@ -16,7 +16,7 @@ statistics gathered onto every device, as host numbers. Host inputs (flags, the 
 episodes) are placed with ``put``, which every process calls with the same values.
 
 A checkpoint of such a state is one orbax checkpoint that every process writes its shards of
-(train/run.py); the host side (logs, policies, the run directory) belongs to process 0.
+(train/runs/run.py); the host side (logs, policies, the run directory) belongs to process 0.
 """
 
 from __future__ import annotations

@@ -24,23 +24,22 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mjx_push import task_rules
 from mjx_push import encoder as enc
 from mjx_push import expert as expert_mod
-from mjx_push import devices, objects, scene
+from mjx_push import devices
 from mjx_push.env import EnvConfig, PushEnv
-from train.networks import make_networks
-from train.presets import RunConfig
-from train.policies import Policy
-from mjx_push.errors import ConfigError
+from mjx_push.perturb import PerturbConfig
+from mjx_push.train.episodes import EvalSpec, episode_objects, geom_types
+from mjx_push.train.networks import make_networks
+from mjx_push.train.config import RunConfig
+from mjx_push.train.runs.policies import Policy
 
-SETTINGS = ("standard", "difficult", "custom")
-SHAPES = ("all", "cylinder", "square", "rectangular", "cuboid")
 METRICS = ("success", "reward", "overshoot", "distance")  # the paper's
 # Object-goal distance (m) at reset and at the end: progress the sparse metrics cannot show (while no
 # episode ends within 1 cm, every reward is -50). Invalid episodes count as no progress.
 DISTANCE_METRICS = ("start_distance", "final_distance")
-DIFFICULT = dict(mass=(0.001, 0.01), friction=(0.2, 0.3), min_height=0.052)
-# `mjx-push eval` (MJX) and `mjx-push deploy` (CPU MuJoCo) print the same table (train.eval_options holds
+# `mjx-push eval` (MJX) and `mjx-push deploy` (CPU MuJoCo) print the same table (mjx_push.cli.options holds
 # their shared options).
 METRIC_LABELS = {
     "success": "success rate",
@@ -66,51 +65,6 @@ def metrics_table(title: str, summary: dict):
     return table
 
 
-@dataclasses.dataclass(frozen=True)
-class EvalSpec:
-    setting: str = "difficult"
-    shape: str = "all"
-    episodes: int = 100
-    seed: int = 1_000_003  # distinct from training seeds; shared by every agent
-    batch: int = 20  # episodes simulated in parallel (does not change the episodes)
-    mass: tuple[float, float] | None = None  # custom setting: ranges replacing Table I's
-    friction: tuple[float, float] | None = None
-    min_height: float | None = None
-    record: int = 0  # keep the per-step trajectories of the first `record` episodes (for videos)
-    success_tau: float | None = None  # success radius (m) to score at; None: the one the policy trained for
-
-    def __post_init__(self):
-        if self.setting not in SETTINGS:
-            raise ConfigError(f"setting must be one of {SETTINGS}, got {self.setting!r}")
-        if self.shape not in SHAPES:
-            raise ConfigError(f"shape must be one of {SHAPES}, got {self.shape!r}")
-        if not (isinstance(self.episodes, int) and self.episodes > 0):
-            raise ConfigError(f"episodes must be a positive integer, got {self.episodes!r}")
-        if not (isinstance(self.batch, int) and self.batch > 0):
-            raise ConfigError(f"batch must be a positive integer, got {self.batch!r}")
-        custom = any(v is not None for v in (self.mass, self.friction, self.min_height))
-        if custom and self.setting != "custom":
-            raise ConfigError("mass / friction / min_height ranges need setting 'custom'")
-        if not 0 <= self.record <= self.episodes:
-            raise ConfigError(f"record must be in [0, episodes], got {self.record}")
-        if self.success_tau is not None and not (math.isfinite(self.success_tau) and self.success_tau > 0):
-            raise ConfigError(f"success_tau must be a positive number of metres, got {self.success_tau!r}")
-
-    def object_config(self, base: objects.ObjectConfig | None = None) -> objects.ObjectConfig:
-        """The object distribution; uniform sampling whatever the agent trained on."""
-        cfg = dataclasses.replace(base or objects.ObjectConfig(), mode="uniform")
-        if self.setting == "difficult":
-            cfg = dataclasses.replace(cfg, **DIFFICULT)
-        elif self.setting == "custom":
-            fields = {
-                k: v
-                for k, v in (("mass", self.mass), ("friction", self.friction), ("min_height", self.min_height))
-                if v is not None
-            }
-            cfg = dataclasses.replace(cfg, **fields)
-        return cfg
-
-
 def sem(x: np.ndarray) -> float:
     """Standard error of the mean: sample standard deviation (ddof=1) / sqrt(n); 0 for one sample."""
     x = np.asarray(x, dtype=np.float64)
@@ -131,37 +85,6 @@ def summarize(per_episode: dict) -> dict:
         }
         for k in keys
     }
-
-
-def episode_geom_type(shape: str, i: int) -> str:
-    """The geom type of episode `i` under shape filter `shape` ("all": even cuboids, odd cylinders)."""
-    if shape == "all":
-        return ("box", "cylinder")[i % 2]
-    return "cylinder" if shape == "cylinder" else "box"
-
-
-def episode_objects(spec: EvalSpec, base: objects.ObjectConfig, geom_type: str, indices: np.ndarray):
-    """(ObjectParams, environment keys) of episodes `indices` (all of `geom_type`): episode i's object,
-    start and goal are drawn from fold_in(PRNGKey(spec.seed), i) alone, so every policy and both
-    simulators (MJX here, CPU MuJoCo in `mjx-push deploy`) meet the same episodes."""
-    cfg = dataclasses.replace(spec.object_config(base), shape=_filter(spec.shape, geom_type))
-    home = jnp.asarray(scene.home_flange_pos()[:2], jnp.float32)
-    base_key = jax.random.PRNGKey(spec.seed)
-    keys = jax.vmap(lambda i: jax.random.fold_in(base_key, i))(jnp.asarray(indices))
-    k_obj = jax.vmap(lambda k: jax.random.fold_in(k, 0))(keys)
-    k_env = jax.vmap(lambda k: jax.random.fold_in(k, 1))(keys)
-    params = jax.vmap(lambda k: objects.sample(k, cfg, geom_type, home))(k_obj)
-    return params, k_env
-
-
-def _geom_types(shape: str) -> tuple[str, ...]:
-    return {"all": ("box", "cylinder"), "cylinder": ("cylinder",)}.get(shape, ("box",))
-
-
-def _filter(shape: str, geom_type: str) -> str:
-    if shape == "all":
-        return "cuboid" if geom_type == "box" else "cylinder"
-    return shape
 
 
 @dataclasses.dataclass(frozen=True)
@@ -245,7 +168,7 @@ class Evaluator:
             start_dist = jnp.linalg.norm(params.start[:, :2] - params.goal[:, :2], axis=-1)
             invalid = s.info["episode_invalid"]
             return {
-                "success": (~invalid & (dist < env.config.success_tau)).astype(jnp.float32),
+                "success": (~invalid & task_rules.reached(dist, env.config.success_tau)).astype(jnp.float32),
                 "reward": jnp.where(invalid, -float(T), jnp.sum(rewards, axis=0)),
                 "overshoot": s.info["corrections"].overshoot.astype(jnp.float32),
                 "distance": s.info["corrections"].distance.astype(jnp.float32),
@@ -269,7 +192,7 @@ class Evaluator:
         per: dict[str, list] = {}
         order: list[np.ndarray] = []
         recorded: list[dict] = []
-        for geom_type in _geom_types(spec.shape):
+        for geom_type in geom_types(spec.shape):
             idx = np.arange(spec.episodes)
             if spec.shape == "all":
                 idx = idx[idx % 2 == (0 if geom_type == "box" else 1)]
@@ -312,8 +235,11 @@ def evaluator_for(
 ) -> Evaluator:
     """A shared Evaluator per (environment, agent network or expert, batch): compiled once per process.
     Keyed by what changes compiled code only: evaluations draw their own objects (uniformly, whatever
-    the training sampler), uGRU and eGRU share one network, and the expert needs no network."""
-    env = dataclasses.replace(env_config, objects=dataclasses.replace(env_config.objects, mode="uniform"))
+    the training sampler) and run without the training's perturbations (`env.perturb`), uGRU and eGRU share one network, and the expert needs no network."""
+    # The protocol's episodes are clean whatever the policy trained under (train/stress.py perturbs them).
+    env = dataclasses.replace(
+        env_config, objects=dataclasses.replace(env_config.objects, mode="uniform"), perturb=PerturbConfig()
+    )
     if expert_config is not None:
         agent_config = None
     elif agent_config.kind == "egru":

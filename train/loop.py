@@ -4,7 +4,7 @@
 
 * ``init(key) -> TrainState``
 * ``rollout(actor_params, key, random_actions, deterministic, expert_envs, episodes) -> (episodes,
-  stats)``: one whole episode in each of ``num_envs`` environments (``train.rollout.make_collect``).
+  stats)``: one whole episode in each of ``num_envs`` environments (``mjx_push.train.rollout.make_collect``).
   Evaluation reuses it chunk by chunk.
 * ``learn(state, episodes, key)``: add the episodes to replay, then ``lax.scan`` over
   ``num_envs * episode_len * utd`` SAC updates (skipped until warm-up is over and replay holds at
@@ -32,14 +32,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from train import data_parallel, normalizer, replay
-from train.adapter import EnvAdapter
-from train.config import TrainConfig
-from train.networks import Networks, make_networks
-from train.normalizer import RunningStats
-from train.replay import ReplayBuffer
-from train.rollout import episode_means, make_collect
-from train.sac import SACState, init_state, make_update
+from mjx_push.train import data_parallel, normalizer, replay
+from mjx_push.train.adapter import EnvAdapter
+from mjx_push.train.config import TrainConfig
+from mjx_push.train.networks import Networks, make_networks
+from mjx_push.train.normalizer import RunningStats
+from mjx_push.train.replay import ReplayBuffer
+from mjx_push.train.rollout import episode_means, make_collect
+from mjx_push.train.sac import SACState, init_state, make_update
 from mjx_push.errors import ConfigError
 
 Params = Any

@@ -4,7 +4,7 @@ The statistics (``RunningStats`` per input group: count, mean and summed squared
 batch by batch with Chan et al.'s parallel formula) live in the training state. After every batch of
 episodes the learner merges that batch's valid steps in and writes mean and std into the "norm"
 collection of the actor's, the critics' and the target critics' variables (see
-``train.networks.Normalizer``), so the networks standardise their inputs with the latest figures and a
+``mjx_push.train.networks.Normalizer``), so the networks standardise their inputs with the latest figures and a
 saved actor carries the figures it was trained with.
 
 Groups: ``ee_xy`` (flange xy) and ``z`` (mask latents: the object's and the goal's codes share one
@@ -18,7 +18,7 @@ import flax.struct
 import jax
 import jax.numpy as jnp
 
-from train.networks import ACTOR_NORM_GROUPS, NORM_MIN_STD, critic_norm_groups
+from mjx_push.train.networks import ACTOR_NORM_GROUPS, NORM_MIN_STD, critic_norm_groups
 
 
 @flax.struct.dataclass

@@ -1,5 +1,5 @@
-"""Run configurations: the learner's `TrainConfig`, the task's `EnvConfig`, the scripted expert and
-the encoder, with the presets of `mjx-push train --preset`.
+"""The presets of `mjx-push train --preset` (each a `mjx_push.train.config.RunConfig`: the learner, the
+task, the scripted expert and the encoder), and the run configuration's files and `--set` overrides.
 
 * ``smoke``: the whole pipeline (demonstrations, rollouts, updates, evaluation, checkpoints, best
   policy) on 2 CPU cores in a few minutes; it proves the plumbing, not the policy.
@@ -33,47 +33,24 @@ import dataclasses
 import json
 import shlex
 from pathlib import Path
-from typing import Literal, get_args
 
 from mjx_push import objects
 from mjx_push.controller import ControllerConfig
 from mjx_push.env import EnvConfig
 from mjx_push.expert import ExpertConfig
-from train import configio
-from train.config import AGENT_KINDS, AgentConfig, DemoConfig, LoopConfig, ReplayConfig, SACConfig, TrainConfig
+from mjx_push.train import configio
+from mjx_push.train.config import (
+    AGENT_KINDS,
+    PRESETS,
+    AgentConfig,
+    DemoConfig,
+    LoopConfig,
+    ReplayConfig,
+    RunConfig,
+    SACConfig,
+    TrainConfig,
+)
 from mjx_push.errors import ConfigError
-
-Preset = Literal["smoke", "cpu", "cpu-long", "teacher-free", "reference", "paper"]  # defined here once
-PRESETS: tuple[str, ...] = get_args(Preset)
-
-
-@dataclasses.dataclass(frozen=True)
-class RunConfig:
-    agent: str
-    preset: str
-    train: TrainConfig
-    env: EnvConfig
-    # Encoder weights to train with (msgpack); None: the shipped pretrained encoder. Saved policies carry
-    # the weights themselves, so this is provenance once training is done.
-    encoder: str | None = None
-    expert: ExpertConfig = ExpertConfig()  # the scripted expert's settings (demonstrations, baseline)
-
-    def __post_init__(self):
-        if self.agent not in AGENT_KINDS:
-            raise ConfigError(f"agent must be one of {AGENT_KINDS}, got {self.agent!r}")
-        if self.preset not in PRESETS:
-            raise ConfigError(f"preset must be one of {PRESETS}, got {self.preset!r}")
-        if self.train.agent.kind != self.agent:
-            raise ConfigError(f"train.agent.kind ({self.train.agent.kind!r}) must equal agent ({self.agent!r})")
-        if self.train.loop.episode_len != self.env.episode_length:
-            raise ConfigError(
-                f"train.loop.episode_len ({self.train.loop.episode_len}) must equal env.episode_length "
-                f"({self.env.episode_length})"
-            )
-        if abs(self.train.replay.success_tau - self.env.success_tau) > 1e-12:
-            raise ConfigError("train.replay.success_tau must equal env.success_tau")
-        if self.env.objects.shape == "any" and self.train.loop.num_envs < 2:
-            raise ConfigError("train.loop.num_envs must be >= 2 with shape filter 'any' (one group per shape)")
 
 
 def env_for(agent: str, objects_cfg: objects.ObjectConfig | None = None, **env_fields) -> EnvConfig:

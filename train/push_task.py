@@ -18,7 +18,7 @@ from mjx_push import encoder as enc
 from mjx_push import expert as expert_mod
 from mjx_push.batch import BatchState, PushBatch
 from mjx_push.env import EnvConfig
-from train.adapter import EnvAdapter, SubstepScheduler
+from mjx_push.train.adapter import EnvAdapter, SubstepScheduler
 from mjx_push.errors import ConfigError
 
 # The privileged state, per environment step: name -> width, in order. The object's xy comes first
@@ -83,7 +83,7 @@ def expert_ground_truth(priv: jax.Array, goal_xy: jax.Array) -> dict:
 # substeps are spent, instead of every step waiting for the slowest environment
 # (benchmarks/rollout_throughput.py measures the effect of this value).
 DEFAULT_SUBSTEP_CHUNK = 50
-# The protocol's shape filter (train.evaluate.SHAPES) for a training shape filter (objects.SHAPE_FILTERS).
+# The protocol's shape filter (mjx_push.train.episodes.SHAPES) for a training shape filter (objects.SHAPE_FILTERS).
 EVAL_SHAPE = {
     "any": "all",
     "cylinder": "cylinder",
@@ -156,11 +156,11 @@ def make_push_adapter(
         return s, observe(s), s.info["episode_invalid"]
 
     def eval_episodes(setting: str, seed: int, chunk: int, num_envs: int) -> dict:
-        """Chunk `chunk` of the protocol's episodes (train.evaluate.episode_objects) of `setting` and
+        """Chunk `chunk` of the protocol's episodes (mjx_push.train.episodes.episode_objects) of `setting` and
         `seed`, laid out as a batch of `num_envs`: with both shapes the box group runs the even
         (cuboid) episodes and the cylinder group the odd ones, as the protocol splits them, so with
         equal groups chunk c is exactly episodes [c N, (c + 1) N)."""
-        from train.evaluate import EvalSpec, episode_objects  # the protocol (imports the learner's modules)
+        from mjx_push.train.episodes import EvalSpec, episode_objects  # the protocol (imports the learner's modules)
 
         b = batch(num_envs)
         spec = EvalSpec(setting=setting, shape=EVAL_SHAPE[env_config.objects.shape], seed=seed)

@@ -26,7 +26,8 @@ import flax.struct
 import jax
 import jax.numpy as jnp
 
-from train.config import ReplayConfig
+from mjx_push import task_rules
+from mjx_push.train.config import ReplayConfig
 from mjx_push.errors import ConfigError
 
 Episodes = dict  # name -> array with a leading episode axis, fields as in the module docstring
@@ -119,7 +120,7 @@ def num_valid_transitions(buffer: ReplayBuffer) -> jax.Array:
 def sparse_reward(obj_xy: jax.Array, goal_xy: jax.Array, success_tau: float) -> jax.Array:
     """-1 while the object is at least ``success_tau`` from the goal, else 0."""
     dist = jnp.linalg.norm(obj_xy - goal_xy, axis=-1)
-    return -(dist >= success_tau).astype(jnp.float32)
+    return task_rules.sparse_reward(dist, success_tau).astype(jnp.float32)
 
 
 def drop_demos(buffer: ReplayBuffer, when) -> ReplayBuffer:

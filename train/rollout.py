@@ -15,10 +15,11 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from train import replay
-from train.adapter import EnvAdapter, select_envs
-from train.config import TrainConfig
-from train.networks import Networks
+from mjx_push import task_rules
+from mjx_push.train import replay
+from mjx_push.train.adapter import EnvAdapter, select_envs
+from mjx_push.train.config import TrainConfig
+from mjx_push.train.networks import Networks
 
 
 def episode_stats(episodes: dict, success_tau: float) -> dict:
@@ -31,7 +32,7 @@ def episode_stats(episodes: dict, success_tau: float) -> dict:
     final_dist = jnp.linalg.norm(episodes["obj_xy"][:, -1] - episodes["goal_xy"], axis=-1)
     valid = episodes["valid"]
     ep_reward = jnp.where(valid, jnp.sum(rewards, axis=1), -float(T))
-    success = valid & (final_dist < success_tau)
+    success = valid & task_rules.reached(final_dist, success_tau)
     return {
         "episode_success": success,
         "episode_reward": ep_reward,

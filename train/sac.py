@@ -6,7 +6,7 @@ coefficient step; all three use the entropy coefficient from before this update.
 the target critics after every update. No terminal flags: episodes end by time limit, so the target
 always bootstraps.
 
-Batches come from ``train.replay.sample``: whole episodes plus the transition's step ``t``; networks
+Batches come from ``mjx_push.train.replay.sample``: whole episodes plus the transition's step ``t``; networks
 compute history features at t and t+1 with the (possibly relabelled) goal.
 
 Options (``SACConfig``): ``target_clip`` clips TD targets to the return's range [-1/(1-gamma), 0];
@@ -26,9 +26,9 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from train.config import AgentConfig, SACConfig
-from train.data_parallel import flat_pmean
-from train.networks import ACTION_DIM, Networks, make_networks
+from mjx_push.train.config import AgentConfig, SACConfig
+from mjx_push.train.data_parallel import flat_pmean
+from mjx_push.train.networks import ACTION_DIM, Networks, make_networks
 from mjx_push.errors import ConfigError
 
 Params = Any
@@ -73,7 +73,7 @@ def alpha_loss(log_alpha, logp, target_entropy):
 
 # ---------------------------------------------------------------------------------------------------
 # Loss factories over networks. ``nets`` needs ``policy(params, episode, idx, noise)`` and
-# ``q(params, episode, idx, action)`` (see train.networks.Networks), so tests can pass stubs.
+# ``q(params, episode, idx, action)`` (see mjx_push.train.networks.Networks), so tests can pass stubs.
 # ---------------------------------------------------------------------------------------------------
 
 

@@ -1,7 +1,7 @@
 """Markdown report and figures of the paper's comparison (VPM, Stacked, uGRU, eGRU) per shape.
 
 `results[agent][shape]` is a list with one evaluation summary per training seed (as returned by
-`train.evaluate.summarize`: {metric: {"mean", "sem", "n"}}). With one seed the error bars are the
+`mjx_push.train.evaluate.summarize`: {metric: {"mean", "sem", "n"}}). With one seed the error bars are the
 standard error over test episodes; with several, the standard error across the seeds' means.
 """
 
@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
-from train import presets
-from train.evaluate import DISTANCE_METRICS, METRICS, sem
-from train.loop import improves
+from mjx_push.train import presets
+from mjx_push.train.evaluate import DISTANCE_METRICS, METRICS, sem
+from mjx_push.train.loop import improves
 from mjx_push.errors import ConfigError
 
 LABELS = {

@@ -24,10 +24,12 @@ import jax
 import jax.numpy as jnp
 
 from mjx_push.errors import ConfigError
-from train import atomic, configio
-from train.checkpoints import Checkpoints, saved_steps
-from train.loop import TrainState
-from train.presets import RunConfig, config_dict, load_config
+from mjx_push.train import configio
+from mjx_push.train.runs import atomic
+from mjx_push.train.runs.checkpoints import Checkpoints, saved_steps
+from mjx_push.train.loop import TrainState
+from mjx_push.train.config import RunConfig
+from mjx_push.train.presets import config_dict, load_config
 
 # What the stored state is made of: the networks' shapes and inputs, the encoder that made the replay's
 # latents, the replay's layout. A fork that changed these would train on state that means something

@@ -7,7 +7,7 @@ when finished, resumed when interrupted), scores the declared actor on the proto
 shape, and writes `FOLDER/runs/<agent>-s<seed>.json` at once: status, env steps, the commit that ran it,
 the per-shape summaries and per-episode values. A run that fails is written as failed with its reason,
 so no run of the protocol goes unreported. `FOLDER/expert.json` holds the scripted expert on the same
-episodes. The tables are then printed from FOLDER alone (`python -m train.comparison_tables FOLDER`).
+episodes. The tables are then printed from FOLDER alone (`python -m mjx_push.train.comparison.tables FOLDER`).
 
 Runs are independent: `plan` lists one command per run for any scheduler that shares OUT and FOLDER.
 """
@@ -23,12 +23,17 @@ from typing import Callable
 
 import numpy as np
 
-from train import atomic, presets
-from train.checkpoints import saved_steps
-from train.comparison_tables import Protocol, load_protocol
-from train.evaluate import EvalSpec, ExpertPolicy, evaluate
-from train.provenance import source_commit
-from train.reproduce import SCHEDULE, eval_cache_path, evaluate_run, read_cache, run_jobs, train_or_reuse
+from mjx_push.train import presets
+from mjx_push.train.runs import atomic
+from mjx_push.train.runs.checkpoints import saved_steps
+from mjx_push.train.comparison.tables import Protocol, load_protocol
+from mjx_push.train.evaluate import ExpertPolicy, evaluate
+from mjx_push.train.episodes import EvalSpec
+from mjx_push.train.provenance import source_commit
+from mjx_push.train.comparison.cache import eval_cache_path, evaluate_run, read_cache
+from mjx_push.train.comparison.jobs import run_jobs
+from mjx_push.train.comparison.reproduce import train_or_reuse
+from mjx_push.train.comparison.study import SCHEDULE
 from mjx_push.errors import ConfigError
 
 
@@ -185,4 +190,4 @@ def plan(runs: ProtocolRuns) -> list[str]:
     shares OUT and FOLDER (each command records its run in FOLDER when it ends)."""
     base = f"mjx-push protocol {runs.folder} --out {runs.out}"
     lines = [f"{base} --job {agent}:{seed}" for agent, seed in jobs_of(runs.protocol)]
-    return lines + [f"{base} --job expert", f"python -m train.comparison_tables {runs.folder} --write"]
+    return lines + [f"{base} --job expert", f"python -m mjx_push.train.comparison.tables {runs.folder} --write"]

@@ -7,7 +7,7 @@ import csv
 import io
 from pathlib import Path
 
-from train import atomic
+from mjx_push.train.runs import atomic
 
 
 class MetricLog:

@@ -1,6 +1,6 @@
 """Orbax checkpoints of a whole TrainState (params, optimiser states, replay buffer, RNG key, counters,
 best params), keyed by environment steps, each with a JSON record of the run's configuration: what a
-run needs to resume exactly (train/run.py)."""
+run needs to resume exactly (train/runs/run.py)."""
 
 from __future__ import annotations
 
@@ -12,9 +12,10 @@ from pathlib import Path
 import jax
 import orbax.checkpoint as ocp
 
-from train import configio
-from train.loop import TrainState
-from train.presets import RunConfig, config_dict, config_from_dict
+from mjx_push.train import configio
+from mjx_push.train.loop import TrainState
+from mjx_push.train.config import RunConfig
+from mjx_push.train.presets import config_dict, config_from_dict
 from mjx_push.errors import ConfigError
 
 CHECKPOINT_FORMAT = "mjx-push-checkpoint"
@@ -84,7 +85,7 @@ class Checkpoints:
         except ConfigError:
             saved = meta.get("config", {})
         mine = config_dict(config)
-        # A run trained longer (`train.run.run`) restores the checkpoints of its shorter self.
+        # A run trained longer (`mjx_push.train.runs.run.run`) restores the checkpoints of its shorter self.
         diff = [] if configio.trained_longer(saved, mine) else configio.differences(saved, mine)
         if diff:
             raise ConfigError(

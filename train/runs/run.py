@@ -1,6 +1,6 @@
 """A training run on disk: the run directory, its lock and checks, and the run itself (train, checkpoint,
-resume exactly, save policies and a summary). Its parts live apart: checkpoints in train.checkpoints,
-saved policies in train.policies, the metric log in train.metric_log, config files in train.presets.
+resume exactly, save policies and a summary). Its parts live apart: checkpoints in mjx_push.train.runs.checkpoints,
+saved policies in mjx_push.train.runs.policies, the metric log in mjx_push.train.runs.metric_log, config files in mjx_push.train.presets.
 
 Run directory layout (``mjx-push train --run-dir DIR``):
 
@@ -32,17 +32,19 @@ import jax
 import numpy as np
 
 from mjx_push import encoder as enc
-from train import atomic, configio, data_parallel
-from train.interrupt import StopOnSignal
-from train.run_lock import RunLock
-from train.adapter import EnvAdapter
-from train.loop import Runner, TrainState, make_train
-from train.loop import train as train_loop
-from train.checkpoints import Checkpoints, saved_steps
-from train.fork import ForkSource, check_fork, fork_state, read_record, write_record
-from train.metric_log import MetricLog
-from train.policies import save_policy
-from train.presets import RunConfig, config_dict, load_config
+from mjx_push.train import configio, data_parallel
+from mjx_push.train.runs import atomic
+from mjx_push.train.runs.signals import StopOnSignal
+from mjx_push.train.runs.lock import RunLock
+from mjx_push.train.adapter import EnvAdapter
+from mjx_push.train.loop import Runner, TrainState, make_train
+from mjx_push.train.loop import train as train_loop
+from mjx_push.train.runs.checkpoints import Checkpoints, saved_steps
+from mjx_push.train.runs.fork import ForkSource, check_fork, fork_state, read_record, write_record
+from mjx_push.train.runs.metric_log import MetricLog
+from mjx_push.train.runs.policies import save_policy
+from mjx_push.train.config import RunConfig
+from mjx_push.train.presets import config_dict, load_config
 from mjx_push.errors import ConfigError
 
 
@@ -131,6 +133,39 @@ def check_not_finished(run_dir: Path, cfg: RunConfig) -> None:
         )
 
 
+def resume_config(run_dir: Path, total_env_steps: int | None = None) -> RunConfig:
+    """The configuration a resume of `run_dir` continues: its own (config.json), trained for
+    `total_env_steps` in all when given (longer only: a resume cannot shorten a run)."""
+    run_dir = Path(run_dir)
+    if not (run_dir / "config.json").is_file():
+        raise ConfigError(
+            f"--resume: no run directory {run_dir}"
+            if not run_dir.is_dir()
+            else f"--resume: {run_dir} holds no run (no config.json)"
+        )
+    cfg = load_config(run_dir / "config.json")
+    total = cfg.train.loop.total_env_steps
+    if total_env_steps is None or total_env_steps == total:
+        return cfg
+    if total_env_steps < total:
+        raise ConfigError(
+            f"--total-env-steps {total_env_steps:,} with --resume: the run in {run_dir} trains for {total:,} "
+            "env steps; --resume can train it longer, not shorter"
+        )
+    from mjx_push.train.presets import with_overrides
+
+    return with_overrides(cfg, {"train.loop.total_env_steps": total_env_steps})
+
+
+@dataclass(frozen=True)
+class Start:
+    """What `run` found before it started: the fork's checkpoint and the settings it changes (None and ()
+    for a new run or a resume)."""
+
+    fork_step: int | None = None
+    fork_changes: tuple[str, ...] = ()
+
+
 def run(
     cfg: RunConfig,
     run_dir: Path,
@@ -143,6 +178,7 @@ def run(
     substep_chunk: int | None = None,
     stop_on_signal: bool = False,
     fork: ForkSource | None = None,
+    on_start: Callable[[Start], None] | None = None,
 ) -> tuple[dict, TrainState]:
     """Train `cfg` in `run_dir` (with `resume`, from its latest checkpoint; a `cfg` that differs from
     the run's own only by a larger ``train.loop.total_env_steps`` trains it longer, finished or not,
@@ -152,23 +188,31 @@ def run(
     `adapter` replaces the MJX task (tests use the toy task). `substep_chunk`: substeps per tick of the
     MJX task's scheduler (0: lockstep; None: the default); it changes speed, not episodes, so it is not
     part of the run's configuration. `stop_on_signal`: SIGINT / SIGTERM stop the run after the current
-    batch with a checkpoint (`train.interrupt`); the summary then holds "interrupted_at_env_steps" and
-    "signal". `fork`: a new run that starts from another run's checkpoint (`train.fork`) with `cfg`'s
-    settings. One process at a time may run in a directory (`train.run_lock`); resuming a finished run
-    raises `RunFinished` and changes nothing. In a multi-process run (`train.data_parallel`) every
+    batch with a checkpoint (`mjx_push.train.runs.signals`); the summary then holds "interrupted_at_env_steps" and
+    "signal". `fork`: a new run that starts from another run's checkpoint (`mjx_push.train.runs.fork`) with `cfg`'s
+    settings. One process at a time may run in a directory (`mjx_push.train.runs.lock`); resuming a finished run
+    raises `RunFinished` and changes nothing. These rules are checked here, once: `on_start` is called
+    when they hold, before anything is built (a command prints its header there). In a multi-process run (`mjx_push.train.data_parallel`) every
     process calls this with the same arguments and directory (a shared file system); process 0 takes
     the lock and writes the logs, policies and summary, all write their shards of each checkpoint.
     Returns (summary, final state)."""
     run_dir = Path(run_dir)
+    start = Start()
     if fork is not None:
         if resume:
-            raise ConfigError("--fork-from starts a new run; --resume continues one: pass one of them")
-        check_fork(fork, cfg)
+            raise ConfigError(
+                "--resume continues the run in --run-dir; --fork-from starts a new one: pass one of them "
+                "(an interrupted fork continues with --resume alone)"
+            )
+        step, changes = check_fork(fork, cfg)
+        start = Start(step, tuple(changes))
     if resume:
         check_not_finished(run_dir, cfg)
         if not run_dir.is_dir():
             raise ConfigError(f"--resume: no checkpoint in {run_dir / 'checkpoints'} ({run_dir} does not exist)")
-    elif data_parallel.is_primary():
+    if on_start is not None:
+        on_start(start)
+    if not resume and data_parallel.is_primary():
         run_dir.mkdir(parents=True, exist_ok=True)
     lock = RunLock(run_dir) if data_parallel.is_primary() else contextlib.nullcontext()
     with lock, StopOnSignal() if stop_on_signal else contextlib.nullcontext() as stop:
@@ -228,7 +272,7 @@ def _run_locked(
     encoder_params = enc.load(cfg.encoder and Path(cfg.encoder))
     loop = cfg.train.loop
     if adapter is None:
-        from train.push_task import DEFAULT_SUBSTEP_CHUNK, make_push_adapter
+        from mjx_push.train.push_task import DEFAULT_SUBSTEP_CHUNK, make_push_adapter
 
         chunk = DEFAULT_SUBSTEP_CHUNK if substep_chunk is None else substep_chunk
         # Data parallel: each device steps its own environments (no split of a batch over devices).

@@ -15,8 +15,9 @@ import numpy as np
 from flax import serialization
 
 from mjx_push import encoder as enc
-from train import atomic
-from train.presets import RunConfig, config_dict, config_from_dict
+from mjx_push.train.runs import atomic
+from mjx_push.train.config import RunConfig
+from mjx_push.train.presets import config_dict, config_from_dict
 from mjx_push.errors import ConfigError
 
 POLICY_FORMAT = "mjx-push-policy"
@@ -72,7 +73,7 @@ def load_policy(path: Path) -> Policy:
     except Exception as e:
         raise ConfigError(f"policy weights {blob_path} are corrupt: {e}") from None
     # Check every array against freshly initialised networks of the recorded agent.
-    from train.networks import make_networks
+    from mjx_push.train.networks import make_networks
 
     nets = make_networks(config.train.agent)
     actor_t = jax.eval_shape(lambda: nets.init_actor(jax.random.PRNGKey(0), config.train.loop.episode_len))

@@ -13,7 +13,7 @@ import time
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from train.config import LoopConfig
+from mjx_push.train.config import LoopConfig
 
 
 def _duration(seconds: float) -> str:
