@@ -13,6 +13,7 @@ from mjx_push.cli.eval import Eval
 from mjx_push.cli.export import Export
 from mjx_push.cli.protocol import Protocol
 from mjx_push.cli.reproduce import Reproduce
+from mjx_push.cli.stress import Stress
 from mjx_push.cli.train import Train
 from mjx_push.cli.train_encoder import TrainEncoder
 from mjx_push.errors import ConfigError
@@ -20,6 +21,7 @@ from mjx_push.errors import ConfigError
 COMMANDS = {
     "train": Train,
     "eval": Eval,
+    "stress": Stress,
     "reproduce": Reproduce,
     "protocol": Protocol,
     "train-encoder": TrainEncoder,
