@@ -183,3 +183,10 @@ def open_video(path: Path):
             f"--video: no .mp4 writer is available ({str(e).splitlines()[0]}); pip install "
             f"'mjx-push[mp4]', or write a GIF: --video {path.with_suffix('.gif')}"
         ) from None
+
+
+def write_plan(path: Path, lines: list[str], log) -> None:
+    """`--plan FILE` of reproduce and protocol: one command a line, for a scheduler; says what it wrote."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines) + "\n")
+    log(f"{len(lines)} commands written to {path}:", *lines, sep="\n", markup=False)

@@ -8,6 +8,7 @@ from typing import Annotated
 
 import tyro
 
+from mjx_push.cli.options import write_plan
 from mjx_push.errors import ConfigError
 
 
@@ -49,10 +50,7 @@ class Protocol:
         for agent in p.agents:  # the preset must give what the protocol declares, before any work
             runs.config(agent, p.seeds[0])
         if self.plan is not None:
-            lines = proto.plan(runs)
-            self.plan.parent.mkdir(parents=True, exist_ok=True)
-            self.plan.write_text("\n".join(lines) + "\n")
-            console.print(f"{len(lines)} commands written to {self.plan}:", *lines, sep="\n", markup=False)
+            write_plan(self.plan, proto.plan(runs), console.print)
             return
         if self.job == "expert":
             proto.expert_job(runs)

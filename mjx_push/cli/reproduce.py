@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Annotated
 
 import tyro
 
-from mjx_push.cli.options import CpuMasks, check_cpu, flag_errors, set_error
+from mjx_push.cli.options import CpuMasks, check_cpu, flag_errors, set_error, write_plan
 from mjx_push.train.config import AgentKind
 from mjx_push.train.config import Preset
 
@@ -122,10 +122,7 @@ class Reproduce:
         if sum(x is not None and x is not False for x in (self.plan, self.job, self.report_only or None)) > 1:
             raise ConfigError("--plan, --job and --report-only exclude each other")
         if self.plan is not None:
-            lines = rep.plan(study)
-            self.plan.parent.mkdir(parents=True, exist_ok=True)
-            self.plan.write_text("\n".join(lines) + "\n")
-            console.print(f"{len(lines)} commands written to {self.plan}:", *lines, sep="\n", markup=False)
+            write_plan(self.plan, rep.plan(study), console.print)
             return
         if self.job is not None:
             if self.job == "expert":
