@@ -397,7 +397,10 @@ def _value(metric: str, value: float, signed: bool = False) -> str:
     return _number(value * fmt.scale, fmt.decimals, signed)
 
 
-def _interval(metric: str, point: float, low: float, high: float, signed: bool = False) -> str:
+def _interval(metric: str, point: float, low: float, high: float, signed: bool = False, seeds: int = 2) -> str:
+    """`point [low, high]`; from a single training seed there is no interval over seeds, and it says so."""
+    if seeds < 2:
+        return f"{_value(metric, point, signed)} [one seed]"
     return f"{_value(metric, point, signed)} [{_value(metric, low, signed)}, {_value(metric, high, signed)}]"
 
 
@@ -481,7 +484,9 @@ def success_table(results: Results) -> str:
         by_seed = {run.seed: run for run in results.finished(agent)}
         row = [_label(agent), f"{len(table)}/{len(protocol.seeds)}"]
         for i, shape in enumerate(protocol.shapes):
-            row.append(DASH if stats is None else _interval("success", stats[0][i], stats[1][i], stats[2][i]))
+            row.append(
+                DASH if stats is None else _interval("success", stats[0][i], stats[1][i], stats[2][i], seeds=len(table))
+            )
             row.append(
                 " / ".join(
                     _value("success", by_seed[s].scores[shape]["success"]) if s in by_seed else DASH
@@ -491,7 +496,8 @@ def success_table(results: Results) -> str:
         if stats is None:
             row.append(DASH)
         else:
-            row.append(_interval("success", *seed_stats.aggregate(table, "iqm", boot.reps, boot.confidence, boot.seed)))
+            iqm = seed_stats.aggregate(table, "iqm", boot.reps, boot.confidence, boot.seed)
+            row.append(_interval("success", *iqm, seeds=len(table)))
         rows.append(row)
     if results.expert is None:
         rows.append([EXPERT_LABEL, MISSING] + [DASH, DASH] * len(protocol.shapes) + [DASH])
@@ -524,7 +530,7 @@ def metrics_table(results: Results) -> str:
             table = results.table(agent, metric)
             stats = _stats(table, boot)
             cells = [
-                DASH if stats is None else _interval(metric, stats[0][i], stats[1][i], stats[2][i])
+                DASH if stats is None else _interval(metric, stats[0][i], stats[1][i], stats[2][i], seeds=len(table))
                 for i in range(len(protocol.shapes))
             ]
             rows.append([label, _label(agent), f"{len(table)}/{len(protocol.seeds)}", *cells])
