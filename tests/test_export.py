@@ -448,7 +448,7 @@ def test_export_command_from_a_run_directory(exported, tmp_path):
         Export(run_dir, tmp_path / "x.zip").run()
 
 
-def test_deploy_command_writes_the_metrics_of_evals_episodes(exported, tmp_path):
+def test_deploy_command_writes_the_metrics_of_evals_episodes(exported, tmp_path, monkeypatch):
     # a_s pinned at -1 (the shortest steps) keeps the simulated episodes short.
     from mjx_push.train.episodes import EvalSpec, episode_objects
 
@@ -479,6 +479,24 @@ def test_deploy_command_writes_the_metrics_of_evals_episodes(exported, tmp_path)
     params, _ = episode_objects(spec, policy.config.env.objects, "cylinder", np.array([1]))
     start = np.asarray(params.start[0, :2]) - np.asarray(params.goal[0, :2])
     assert saved["episodes"][1]["start_distance"] == pytest.approx(float(np.linalg.norm(start)), abs=1e-6)
+    # The simulated cell stressed as a real one (docs/robustness.md): --perturb's rows at its level reach
+    # the CPU MuJoCo environment (what they do there: tests/test_perturb.py), and the record says so.
+    from mjx_push import perturb
+    from mjx_push.export import cpu_env
+
+    seen = []
+
+    class Spy(cpu_env.CpuPushEnv):
+        def __init__(self, config, **kwargs):
+            seen.append(config.perturb)
+            super().__init__(config, **kwargs)
+
+    monkeypatch.setattr(cpu_env, "CpuPushEnv", Spy)
+    shaken = Deploy(
+        policy=quick, episodes=1, seed=3, mask_source="analytic", perturb=("camera", "latency"), perturb_level="severe"
+    ).run()
+    assert seen == [perturb.suite_config(("camera", "latency"), "severe")] and seen[0] != perturb.PerturbConfig()
+    assert shaken["perturb"] == {"rows": ["camera", "latency"], "level": "severe"} and saved["perturb"] is None
     assert saved["mask_source"] == "analytic"
 
 

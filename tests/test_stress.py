@@ -30,8 +30,7 @@ def run_config(encoder_file):
     from mjx_push.train import presets
 
     cfg = presets.make("vpm", "smoke")
-    train = dataclasses.replace(cfg.train, loop=dataclasses.replace(cfg.train.loop, episode_len=3))
-    return dataclasses.replace(cfg, env=TASK, train=train, encoder=encoder_file)
+    return dataclasses.replace(cfg, env=TASK, encoder=encoder_file)
 
 
 def first(state):
@@ -217,6 +216,7 @@ def test_stress_command_refuses_bad_options_by_name(capsys):
         (["stress", "expert", "--episodes", "0"], "--episodes must be a positive integer"),
         (["stress", "runs/none", "--preset", "cpu"], "--preset chooses the scripted expert's action box"),
         (["stress", "runs/none"], "POLICY runs/none: no such file or directory"),
+        (["deploy", "pretrained:egru", "--perturb", "nope"], "--perturb must be one of"),
     ]:
         assert cli_main(argv) == 2, argv
         assert message in capsys.readouterr().err, argv

@@ -9,7 +9,7 @@ from typing import Annotated, Literal
 
 import tyro
 
-from mjx_push.cli.options import EvalOptions, open_video
+from mjx_push.cli.options import EvalOptions, flag_errors, open_video
 
 from mjx_push.errors import ConfigError
 
@@ -23,6 +23,10 @@ class Deploy(EvalOptions):
     """the exported .npz (from `mjx-push export`), or a shipped policy: `pretrained:NAME`"""
     sim: Literal["cpu"] = "cpu"
     """simulator: CPU MuJoCo (mjx_push.export.cpu_env.CpuPushEnv)"""
+    perturb: Annotated[tuple[str, ...], tyro.conf.arg(metavar="NAME ...", help_behavior_hint="(default: none)")] = ()
+    """run the episodes under these rows of the stress suite (docs/robustness.md: camera, latency,
+    mask_flip, ...), all at once, at --perturb-level: the simulated cell as a real one would be"""
+    perturb_level: Literal["mild", "realistic", "severe"] = "realistic"
     mask_source: Literal["auto", "render", "analytic"] = "auto"
     """object masks: the rendered under-table camera, the analytic projection (as in MJX),
     or render when possible (the header says which)"""
@@ -46,6 +50,16 @@ class Deploy(EvalOptions):
         if not Path(self.policy).is_file():
             raise ConfigError(f"POLICY.npz {self.policy}: no such file")
         self.check_options()
+        self._perturbations()  # refused before any work
+
+    def _perturbations(self):
+        """The stress suite's rows of --perturb at --perturb-level (None: a clean cell)."""
+        if not self.perturb:
+            return None
+        from mjx_push import perturb
+
+        with flag_errors({"perturbation": "--perturb", "level": "--perturb-level"}):
+            return perturb.suite_config(self.perturb, self.perturb_level)
 
     def run(self) -> dict:
         self._check()
@@ -62,7 +76,7 @@ class Deploy(EvalOptions):
         except ValueError as e:
             raise ConfigError(f"POLICY.npz {self.policy}: {e}") from None
         spec = self.spec()
-        config = sim_eval.env_config(policy.metadata, spec)
+        config = sim_eval.env_config(policy.metadata, spec, self._perturbations())
         console = Console()
         writer = open_video(Path(self.video)) if self.video is not None else None
         env = CpuPushEnv(config, mask_source=self.mask_source)
@@ -90,6 +104,7 @@ class Deploy(EvalOptions):
             "shape": self.shape,
             "seed": self.seed,
             "mask_source": env.mask_source_used,
+            "perturb": {"rows": list(self.perturb), "level": self.perturb_level} if self.perturb else None,
             "summary": summary,
             "invalid_episodes": invalid,
             "episodes": records,
