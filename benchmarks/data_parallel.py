@@ -26,8 +26,9 @@ from benchmarks.output import write_json
 from mjx_push import xla
 
 
-def synthetic_episodes(cfg, priv_dim: int, key):
-    """A batch of `num_envs` valid demonstration episodes with random contents, as the learner stores them."""
+def synthetic_episodes(cfg, episode_len: int, priv_dim: int, key):
+    """A batch of `num_envs` valid demonstration episodes of `episode_len` steps (the task's) with random
+    contents, as the learner stores them."""
     import jax
     import jax.numpy as jnp
 
@@ -35,7 +36,7 @@ def synthetic_episodes(cfg, priv_dim: int, key):
 
     loop = cfg.loop
     spec = replay.episode_spec(
-        loop.episode_len, 3, priv_dim if cfg.agent.critic_obs == "privileged" else 0, cfg.demo.enabled
+        episode_len, 3, priv_dim if cfg.agent.critic_obs == "privileged" else 0, cfg.demo.enabled
     )
     out = {}
     for i, (name, (shape, dtype)) in enumerate(sorted(spec.items())):
@@ -67,21 +68,22 @@ def measure(agent: str, preset: str, devices: int, batches: int, rollout: bool) 
         run.env, enc.load(None), expert_config=run.expert, max_devices=None if devices == 1 else 1
     )
     runner = Runner(make_train(cfg, adapter))
+    T = run.env.episode_length
     ts = runner.init(jax.random.PRNGKey(0))
-    row = {"devices": devices, "num_envs": cfg.loop.num_envs, "updates_per_batch": cfg.loop.updates_per_iteration}
+    row = {"devices": devices, "num_envs": cfg.loop.num_envs, "updates_per_batch": cfg.loop.updates_per_iteration(T)}
     t0 = time.perf_counter()
     ts, m = jax.block_until_ready(
-        runner.learn(ts, synthetic_episodes(cfg, PRIV_DIM, jax.random.PRNGKey(1)), jax.random.PRNGKey(100))
+        runner.learn(ts, synthetic_episodes(cfg, T, PRIV_DIM, jax.random.PRNGKey(1)), jax.random.PRNGKey(100))
     )
     row["learn_compile_s"] = time.perf_counter() - t0
     assert bool(m["learning"]), "the timed batches must run their updates"
     times = []
     for b in range(batches):
-        eps = synthetic_episodes(cfg, PRIV_DIM, jax.random.PRNGKey(2 + b))
+        eps = synthetic_episodes(cfg, T, PRIV_DIM, jax.random.PRNGKey(2 + b))
         t0 = time.perf_counter()
         ts, m = jax.block_until_ready(runner.learn(ts, eps, jax.random.PRNGKey(101 + b)))
         times.append(time.perf_counter() - t0)
-    row["updates_per_s"] = cfg.loop.updates_per_iteration / float(np.median(times))
+    row["updates_per_s"] = cfg.loop.updates_per_iteration(T) / float(np.median(times))
     if rollout:
         flags = (jnp.asarray(False), jnp.asarray(False), np.zeros(cfg.loop.num_envs, bool))
         t0 = time.perf_counter()
@@ -92,7 +94,7 @@ def measure(agent: str, preset: str, devices: int, batches: int, rollout: bool) 
             t0 = time.perf_counter()
             jax.block_until_ready(runner.rollout(ts.sac.actor_params, jax.random.PRNGKey(4 + r), *flags))
             times.append(time.perf_counter() - t0)
-        row["env_steps_per_s"] = cfg.loop.env_steps_per_iteration / float(np.median(times))
+        row["env_steps_per_s"] = cfg.loop.env_steps_per_iteration(T) / float(np.median(times))
     return row
 
 

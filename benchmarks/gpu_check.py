@@ -150,8 +150,8 @@ def train_stages(cfg, learn_seconds: float, deadline: float, save) -> tuple[dict
     while time.perf_counter() < stop and int(ts.env_steps) < loop.total_env_steps:
         ts, m = runner.iteration(ts)
         batches.append({"rollout_s": m["rollout_s"], "learn_s": m["learn_s"], "learning": bool(m["learning"])})
-    steps_per_batch = loop.env_steps_per_iteration
-    updates_per_batch = loop.updates_per_iteration
+    steps_per_batch = loop.env_steps_per_iteration(cfg.env.episode_length)
+    updates_per_batch = loop.updates_per_iteration(cfg.env.episode_length)
     train = {
         "num_envs": loop.num_envs,
         "env_steps_per_batch": steps_per_batch,

@@ -34,18 +34,18 @@ def measure(agent: str, preset: str, at: int, repeats: int) -> dict:
     from mjx_push.train.push_task import PRIV_DIM, make_push_adapter
 
     run = presets.make(agent, preset)
-    cfg = run.train
+    cfg, T = run.train, run.env.episode_length
     runner = Runner(make_train(cfg, make_push_adapter(run.env, enc.load(None), expert_config=run.expert)))
     ts = runner.init(jax.random.PRNGKey(0))
     buffer = ts.buffer
     for i in range(4):  # past the batch size, demonstrations and the agent's own episodes both
-        eps = synthetic_episodes(cfg, PRIV_DIM, jax.random.PRNGKey(10 + i))
+        eps = synthetic_episodes(cfg, T, PRIV_DIM, jax.random.PRNGKey(10 + i))
         buffer = replay.add(buffer, {**eps, "demo": jnp.full(eps["valid"].shape, i % 2 == 0)})
     # The batch about to be learned ends at `at` env steps: the schedule's weights are those of that batch.
-    ts = ts.replace(buffer=buffer, env_steps=jnp.asarray(at - cfg.loop.env_steps_per_iteration, jnp.int32))
+    ts = ts.replace(buffer=buffer, env_steps=jnp.asarray(at - cfg.loop.env_steps_per_iteration(T), jnp.int32))
     times = []
     for r in range(repeats + 1):
-        eps = synthetic_episodes(cfg, PRIV_DIM, jax.random.PRNGKey(100 + r))
+        eps = synthetic_episodes(cfg, T, PRIV_DIM, jax.random.PRNGKey(100 + r))
         step = int(ts.env_steps)  # the state is donated to the call
         t0 = time.perf_counter()
         ts, m = jax.block_until_ready(runner.learn(ts, eps, jax.random.PRNGKey(200 + r)))
@@ -58,10 +58,10 @@ def measure(agent: str, preset: str, at: int, repeats: int) -> dict:
         "env_steps": at,
         "teacher_scale": float(m["demo/teacher_scale"]),
         "anchor_scale": float(m["demo/anchor_scale"]),
-        "updates": cfg.loop.updates_per_iteration,
+        "updates": cfg.loop.updates_per_iteration(T),
         "first_call_s": times[0],
         "learn_s": float(np.median(times[1:])),
-        "ms_per_update": 1000 * float(np.median(times[1:])) / cfg.loop.updates_per_iteration,
+        "ms_per_update": 1000 * float(np.median(times[1:])) / cfg.loop.updates_per_iteration(T),
     }
 
 

@@ -47,7 +47,7 @@ _BUDGET = {
     "train.loop.eval_episodes": 64,
     "expert.hold_short": True,  # the teacher the rungs were measured with (the cpu preset now holds steady)
 }
-_5CM = {"env.success_tau": 0.05}  # the learner's relabelling radius follows it
+_5CM = {"env.success_tau": 0.05}  # the task's radius, so the learner's rewards too
 # The README's main job as it is now (the cpu preset of 35,200 env steps, the steady-hold teacher),
 # with the rungs' in-run evaluations so a learner's curve shows.
 _MAIN = {

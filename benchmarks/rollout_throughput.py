@@ -63,7 +63,7 @@ def measure(num_envs: int, chunk: int, repeats: int, agent: str) -> list[dict]:
                 "actions": label,
                 "first_call_s": first,
                 "rollout_s": best,
-                "env_steps_per_s": num_envs * loop.episode_len / best,
+                "env_steps_per_s": num_envs * cfg.env.episode_length / best,
                 "substeps_per_env_step": float(substeps.mean()),
             }
         )

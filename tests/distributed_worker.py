@@ -49,7 +49,7 @@ def main(argv=None) -> int:
     if a.toy:
         from tests.toy import make_toy
 
-        adapter = make_toy(success_tau=cfg.env.success_tau)
+        adapter = make_toy(success_tau=cfg.env.success_tau, episode_len=cfg.env.episode_length)
     summary, state = run_mod.run(cfg, a.run_dir, resume=a.resume, adapter=adapter, stop_after=a.stop_after)
     # Every field but the replay shards (each process holds its own): this process's copy of each.
     local = jax.tree_util.tree_leaves_with_path(state.replace(buffer=None))

@@ -90,7 +90,6 @@ def tiny_run_config(agent: str, encoder_path: str):
         replay=ReplayConfig(capacity_transitions=60),
         loop=LoopConfig(
             num_envs=2,
-            episode_len=3,
             total_env_steps=12,
             warmup_env_steps=6,
             utd=0.5,
@@ -123,10 +122,9 @@ def toy_run_config(encoder, kind="ugru", seed=0):
         ),
         sac=SACConfig(batch_size=16, bc_weight=1.0, bc_batch_size=8, target_clip=True),
         demo=DemoConfig(warmup=True, fraction=0.25, noise=0.1, label_all=True),
-        replay=ReplayConfig(capacity_transitions=2_000, success_tau=TOY_TAU),
+        replay=ReplayConfig(capacity_transitions=2_000),
         loop=LoopConfig(
             num_envs=4,
-            episode_len=10,
             total_env_steps=200,
             warmup_env_steps=80,
             utd=0.25,

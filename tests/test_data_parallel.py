@@ -96,9 +96,7 @@ def test_a_data_parallel_run_checks_its_shapes_and_devices():
         LoopConfig(num_envs=6, data_parallel=4)
     with pytest.raises(ConfigError, match="sac.batch_size must be a multiple of loop.data_parallel"):
         make_train(
-            dataclasses.replace(
-                toy_config("vpm", 800, batch_size=127), loop=LoopConfig(num_envs=8, episode_len=10, data_parallel=2)
-            ),
+            dataclasses.replace(toy_config("vpm", 800, batch_size=127), loop=LoopConfig(num_envs=8, data_parallel=2)),
             make_toy(success_tau=TAU),
         )
     with pytest.raises(ConfigError, match="process id 2 is not one of 2 processes"):

@@ -7,6 +7,7 @@ import dataclasses
 import jax.numpy as jnp
 import pytest
 
+from mjx_push.config import EnvConfig
 from mjx_push.train.config import AgentConfig, DemoConfig, LoopConfig, ReplayConfig, SACConfig, TrainConfig
 
 
@@ -17,8 +18,8 @@ def test_defaults_are_the_paper_budget():
     assert cfg.sac.resolved_target_entropy(3) == -3.0
     assert SACConfig(target_entropy=-1.5).resolved_target_entropy(3) == -1.5
     assert cfg.replay.capacity_transitions == 300_000 and cfg.replay.relabel_prob == pytest.approx(0.8)
-    assert (cfg.loop.episode_len, cfg.loop.warmup_env_steps, cfg.loop.utd) == (50, 10_000, 1.0)
-    assert cfg.loop.num_iterations == 580  # 29,000 steps of one environment
+    assert (EnvConfig().episode_length, cfg.loop.warmup_env_steps, cfg.loop.utd) == (50, 10_000, 1.0)
+    assert cfg.loop.num_iterations(EnvConfig().episode_length) == 580  # 29,000 steps of one environment
     with pytest.raises(dataclasses.FrozenInstanceError):
         cfg.sac.lr = 1.0  # type: ignore[misc]
 
@@ -28,8 +29,8 @@ def test_recurrent_agents():
 
 
 def test_updates_per_iteration_counts_the_whole_batch():
-    loop = LoopConfig(num_envs=16, episode_len=50, utd=0.5)
-    assert loop.env_steps_per_iteration == 800 and loop.updates_per_iteration == 400
+    loop = LoopConfig(num_envs=16, utd=0.5)
+    assert loop.env_steps_per_iteration(50) == 800 and loop.updates_per_iteration(50) == 400
 
 
 def _annealed(sac=None, warmup=True, fraction=0.25, **demo):
@@ -53,10 +54,13 @@ def _annealed(sac=None, warmup=True, fraction=0.25, **demo):
         (lambda: AgentConfig("vpm", hidden=()), r"agent\.hidden"),
         (lambda: AgentConfig("ugru", gru_hidden=0), r"agent\.gru_hidden"),
         (lambda: ReplayConfig(her_k=-1), r"replay\.her_k"),
-        (lambda: ReplayConfig(success_tau=0.0), r"replay\.success_tau"),
+        (lambda: EnvConfig(success_tau=0.0), r"env\.success_tau must be > 0"),
         (lambda: LoopConfig(num_envs=0), r"loop\.num_envs"),
         (lambda: LoopConfig(utd=-1.0), r"loop\.utd"),
-        (lambda: LoopConfig(num_envs=1, episode_len=50, utd=0.011), r"loop\.utd .*whole number"),
+        (
+            lambda: TrainConfig(AgentConfig("vpm"), loop=LoopConfig(num_envs=1, utd=0.011)).check_task(50, 0.01),
+            r"loop\.utd .*whole number",
+        ),
         (lambda: AgentConfig("vpm", critic_hidden=(256, 0)), r"agent\.critic_hidden must be a non-empty tuple"),
         (lambda: AgentConfig("vpm", critic_obs="state"), r"agent\.critic_obs must be one of \('actor', 'privileged'\)"),
         (lambda: AgentConfig("vpm", critic_layer_norm="yes"), r"agent\.critic_layer_norm must be a bool"),
@@ -66,7 +70,13 @@ def _annealed(sac=None, warmup=True, fraction=0.25, **demo):
         (lambda: SACConfig(bc_weight=-1.0), r"sac\.bc_weight must be a finite number >= 0"),
         (lambda: SACConfig(bc_batch_size=0), r"sac\.bc_batch_size must be a positive int"),
         (lambda: SACConfig(q_filter="no"), r"sac\.q_filter must be a bool"),
-        (lambda: ReplayConfig(curriculum_tau=0.005), r"replay\.curriculum_tau must be None or a number >= "),
+        (
+            lambda: TrainConfig(
+                AgentConfig("vpm"), replay=ReplayConfig(curriculum_tau=0.005, curriculum_env_steps=10)
+            ).check_task(50, 0.01),
+            r"replay\.curriculum_tau must be None or a number >= the task's success radius \(0\.01\)",
+        ),
+        (lambda: ReplayConfig(curriculum_tau=0.0, curriculum_env_steps=10), r"replay\.curriculum_tau must be None or"),
         (lambda: ReplayConfig(curriculum_tau=0.05), r"replay\.curriculum_env_steps must be a positive int"),
         (lambda: ReplayConfig(curriculum_env_steps=-5), r"replay\.curriculum_env_steps must be an int >= 0"),
         (lambda: DemoConfig(fraction=1.5), r"demo\.fraction must be a number in \[0, 1\]"),
@@ -114,7 +124,7 @@ def _annealed(sac=None, warmup=True, fraction=0.25, **demo):
         (
             lambda: TrainConfig(
                 AgentConfig("vpm"), replay=ReplayConfig(capacity_transitions=100), loop=LoopConfig(num_envs=4)
-            ),
+            ).check_task(50, 0.01),  # episodes of 50 steps, the task's
             r"replay\.capacity_transitions must be at least .* = 200",
         ),
     ],
@@ -125,9 +135,9 @@ def test_validation_names_the_field(make, message):
 
 
 def test_curriculum_radius_falls_linearly_to_the_task_radius():
-    r = ReplayConfig(success_tau=0.01, curriculum_tau=0.05, curriculum_env_steps=1000)
-    assert [float(r.reward_tau(s)) for s in (0, 500, 1000, 5000)] == pytest.approx([0.05, 0.03, 0.01, 0.01])
-    assert ReplayConfig(success_tau=0.02).reward_tau(123) == 0.02  # no curriculum
+    r = ReplayConfig(curriculum_tau=0.05, curriculum_env_steps=1000)
+    assert [float(r.reward_tau(s, 0.01)) for s in (0, 500, 1000, 5000)] == pytest.approx([0.05, 0.03, 0.01, 0.01])
+    assert ReplayConfig().reward_tau(123, 0.02) == 0.02  # no curriculum
 
 
 def test_teacher_annealing_falls_linearly_to_zero_at_its_end():
@@ -153,13 +163,57 @@ def test_the_task_facts_are_set_once_on_the_environment():
 
     base = presets.make("vpm", "cpu")
     cfg = presets.with_overrides(base, {"env.episode_length": 30, "env.success_tau": 0.05})
-    assert (cfg.train.loop.episode_len, cfg.train.replay.success_tau) == (30, 0.05)  # the learner's copies follow
+    assert (cfg.env.episode_length, cfg.env.success_tau) == (30, 0.05)  # the learner has no copies to follow
+    assert not hasattr(cfg.train.loop, "episode_len") and not hasattr(cfg.train.replay, "success_tau")
     assert presets.override(base, **{"loop.num_envs": 16, "sac.lr": None}).train.loop.num_envs == 16
-    for copy, source in presets.TASK_FACTS.items():
-        with pytest.raises(ValueError, match=rf"--set {copy}: it is the environment's {source}.*set {source} instead"):
+    for copy, source in presets.REMOVED_TASK_COPIES.items():
+        with pytest.raises(ValueError, match=rf"--set {copy}: .*environment; set {source} instead"):
             presets.with_overrides(base, {copy: 7})
     same = presets.with_overrides(base, {"train.replay.success_tau": 0.02, "env.success_tau": 0.02})
-    assert same.train.replay.success_tau == same.env.success_tau == 0.02  # naming both, equal, is fine
+    assert same.env.success_tau == 0.02  # naming both, equal, is fine (the removed copy is ignored)
+    assert presets.with_overrides(base, {"train.loop.episode_len": 50}) == base
+    # The learner's checks that need the task's facts read the environment's.
+    need = base.train.loop.num_envs * 300
+    with pytest.raises(ValueError, match=rf"replay\.capacity_transitions must be at least .* = {need}"):
+        presets.with_overrides(base, {"env.episode_length": 300, "train.replay.capacity_transitions": need - 1})
+
+
+def _old_record(cfg, episode_len=None, success_tau=None) -> dict:
+    """``cfg``'s dict as written before the learner's copies of the task's facts were removed."""
+    from mjx_push.train import presets
+
+    d = presets.config_dict(cfg)
+    d["train"]["loop"]["episode_len"] = cfg.env.episode_length if episode_len is None else episode_len
+    d["train"]["replay"]["success_tau"] = cfg.env.success_tau if success_tau is None else success_tau
+    return d
+
+
+def test_a_record_written_with_the_learners_copies_still_loads():
+    """config.json, checkpoint, policy and exported-policy records written before the copies' removal
+    hold train.loop.episode_len and train.replay.success_tau: equal to the environment's, they are
+    dropped; different, the record is refused naming the field."""
+    import json
+
+    from mjx_push.train import presets
+
+    cfg = presets.with_overrides(presets.make("ugru", "cpu", seed=3), {"env.success_tau": 0.05})
+    old = _old_record(cfg)
+    snapshot = json.dumps(old)
+    assert presets.config_from_dict(old) == cfg
+    assert json.dumps(old) == snapshot  # the record itself is left as it was
+    partial = _old_record(cfg)
+    del partial["train"]["replay"]["success_tau"]  # one copy only, and env's field left to its default
+    del partial["env"]["episode_length"]
+    assert presets.config_from_dict(partial) == cfg
+    with pytest.raises(
+        ValueError, match=r"config\.train\.loop\.episode_len \(30\) differs from config\.env\.episode_length \(50\)"
+    ):
+        presets.config_from_dict(_old_record(cfg, episode_len=30))
+    with pytest.raises(
+        ValueError,
+        match=r"config\.train\.replay\.success_tau \(0\.01\) differs from config\.env\.success_tau \(0\.05\)",
+    ):
+        presets.config_from_dict(_old_record(cfg, success_tau=0.01))
 
 
 def test_the_teacher_free_preset_is_cpu_long_then_the_teacher_annealed_away():

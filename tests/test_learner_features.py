@@ -201,8 +201,8 @@ def test_target_clip_bounds_the_td_target():
 
 
 def test_demo_batches_come_from_demonstrations_unrelabelled_and_the_radius_is_an_input():
-    cfg = ReplayConfig(capacity_transitions=10 * T, her_k=4, success_tau=0.01)
-    buf = replay.init(cfg, T, priv_dim=3)
+    cfg = ReplayConfig(capacity_transitions=10 * T, her_k=4)
+    buf = replay.init(cfg, T, priv_dim=3, success_tau=0.01)
     ep = _episodes(np.random.default_rng(3), n=4, priv_dim=3)
     buf = replay.add(buf, ep)
     assert int(replay.num_demo_episodes(buf)) == 1
@@ -221,7 +221,6 @@ TAU = 0.025
 def _toy_cfg(loop_over=None, **over):
     loop = dict(
         num_envs=8,
-        episode_len=10,
         total_env_steps=1280,
         warmup_env_steps=160,
         utd=1.0,
@@ -233,9 +232,7 @@ def _toy_cfg(loop_over=None, **over):
     return TrainConfig(
         agent=AgentConfig("vpm", obs_norm=True, critic_obs="privileged", critic_layer_norm=True),
         sac=SACConfig(batch_size=128, init_alpha=0.05, target_clip=True, bc_weight=1.0, bc_batch_size=64),
-        replay=ReplayConfig(
-            capacity_transitions=20_000, success_tau=TAU, curriculum_tau=0.05, curriculum_env_steps=400
-        ),
+        replay=ReplayConfig(capacity_transitions=20_000, curriculum_tau=0.05, curriculum_env_steps=400),
         loop=LoopConfig(**loop),
         demo=DemoConfig(warmup=True, fraction=0.25, noise=0.1),
         **over,
@@ -332,7 +329,7 @@ def test_bad_release_settings_are_refused_by_name(fields, message):
 
 def test_drop_demos_marks_only_the_demonstrations_invalid():
     rng = np.random.default_rng(0)
-    buf = replay.init(ReplayConfig(capacity_transitions=6 * T), T)
+    buf = replay.init(ReplayConfig(capacity_transitions=6 * T), T, success_tau=0.01)
     eps = {**_episodes(rng, 3), "demo": jnp.array([True, False, True])}
     buf = replay.add(buf, eps)
     kept = replay.drop_demos(buf, jnp.asarray(False))
@@ -376,7 +373,7 @@ def test_the_anchor_holds_then_lets_go_and_learning_outlives_the_demonstrations(
     assert all(h["replay/demo_episodes"] == 0 for h in after)
     assert all(h["learning"] for h in after)
     updates = [h["updates"] for h in after]
-    assert all(b - a == cfg.loop.updates_per_iteration for a, b in zip(updates, updates[1:]))
+    assert all(b - a == cfg.loop.updates_per_iteration(10) for a, b in zip(updates, updates[1:]))
     assert [h["demo/anchor_scale"] for h in after] == [1.0, 0.5, 0.0, 0.0, 0.0]
     assert all(np.isfinite(h["sac/actor_loss"]) for h in after)
 

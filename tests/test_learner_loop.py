@@ -6,6 +6,7 @@ deterministic success on the toy goal-reaching task within about a minute of CPU
 
 import mjx_push.train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
 
+import dataclasses
 import time
 
 import jax
@@ -23,9 +24,9 @@ HELD_OUT = jax.random.PRNGKey(12345)  # evaluation episodes the best-model selec
 
 
 def toy_config(kind, total_env_steps, seed=0, hidden=(128, 256, 64), batch_size=128, **loop):
+    """The toy task's learner; its episodes last the toy's episode_len (10 unless made otherwise)."""
     loop = {
         "num_envs": 8,
-        "episode_len": 10,
         "total_env_steps": total_env_steps,
         "warmup_env_steps": 480,
         "utd": 1.0,
@@ -37,7 +38,7 @@ def toy_config(kind, total_env_steps, seed=0, hidden=(128, 256, 64), batch_size=
     return TrainConfig(
         agent=AgentConfig(kind, hidden=hidden),
         sac=SACConfig(batch_size=batch_size),
-        replay=ReplayConfig(capacity_transitions=20_000, success_tau=TAU),
+        replay=ReplayConfig(capacity_transitions=20_000),
         loop=LoopConfig(**loop),
     )
 
@@ -89,7 +90,7 @@ def test_best_params_are_selected_by_mean_reward(learned):
 
 def test_warmup_then_updates_per_batch(learned):
     cfg, trainer, state, history, _, _ = learned
-    per_iter = cfg.loop.updates_per_iteration
+    per_iter = cfg.loop.updates_per_iteration(trainer.adapter.episode_len)
     assert per_iter == 80
     learning = [h["learning"] for h in history]
     first = learning.index(True)
@@ -110,7 +111,7 @@ def nan_toy(invalid_prob=0.1):
         obs = jax.tree.map(lambda x: jnp.where(invalid[:, None], jnp.nan, x), obs)
         return state, obs, invalid
 
-    return EnvAdapter(reset=toy.reset, step=step, success_tau=TAU)
+    return EnvAdapter(reset=toy.reset, step=step, success_tau=TAU, episode_len=toy.episode_len)
 
 
 @pytest.fixture(scope="module")
@@ -147,19 +148,36 @@ def test_resuming_gives_the_same_result(small):
     jax.tree.map(np.testing.assert_array_equal, resumed.best_actor_params, full.best_actor_params)
 
 
-def test_success_radius_must_match_the_environment():
-    cfg = toy_config("vpm", 400)
-    with pytest.raises(ValueError, match="replay.success_tau must equal"):
-        make_train(cfg, make_toy(success_tau=0.01))
+def test_the_task_facts_are_the_environments():
+    """The learner's success radius (its rewards) and episode length are the adapter's, and the checks
+    that need them name the learner's field."""
+    trainer = make_train(toy_config("vpm", 400), make_toy(success_tau=0.01, episode_len=7))
+    buffer = trainer.init(jax.random.PRNGKey(0)).buffer
+    assert (buffer.success_tau, buffer.episode_len) == (0.01, 7)
+    curriculum = dataclasses.replace(
+        toy_config("vpm", 400),
+        replay=ReplayConfig(capacity_transitions=20_000, curriculum_tau=0.03, curriculum_env_steps=8),
+    )
+    with pytest.raises(
+        ValueError, match=r"replay\.curriculum_tau must be None or a number >= the task's success radius \(0\.05\)"
+    ):
+        make_train(curriculum, make_toy(success_tau=0.05))
+    with pytest.raises(
+        ValueError,
+        match=r"replay\.capacity_transitions must be at least loop\.num_envs \* the task's episode length = 24000",
+    ):
+        make_train(toy_config("vpm", 400), make_toy(success_tau=TAU, episode_len=3000))
 
 
 @pytest.mark.parametrize("kind", ["vpm", "ugru"])
 def test_scheduled_rollout_gives_the_lockstep_episodes(kind):
     """Steps of 1..8 substeps advanced 3 at a time: environments finish their steps at different
     ticks, yet every episode (observations, actions, invalid flags) is the lockstep one."""
-    cfg = toy_config(kind, 160, num_envs=6, episode_len=7)
-    lock = make_train(cfg, make_toy(success_tau=TAU, invalid_prob=0.05))
-    sched = make_train(cfg, make_toy(success_tau=TAU, invalid_prob=0.05, substep_chunk=3, max_substeps=8))
+    cfg = toy_config(kind, 160, num_envs=6)
+    lock = make_train(cfg, make_toy(success_tau=TAU, episode_len=7, invalid_prob=0.05))
+    sched = make_train(
+        cfg, make_toy(success_tau=TAU, episode_len=7, invalid_prob=0.05, substep_chunk=3, max_substeps=8)
+    )
     actor = lock.init(jax.random.PRNGKey(1)).sac.actor_params
     for random_actions, deterministic in ((True, False), (False, False), (False, True)):
         args = (actor, jax.random.PRNGKey(5), jnp.asarray(random_actions), jnp.asarray(deterministic))

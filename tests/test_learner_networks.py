@@ -109,7 +109,7 @@ def test_gru_features_with_relabelled_goal_equal_a_fresh_scan():
     T_ = 6
     nets = make_networks(AgentConfig("ugru"))
     actor, _ = nets.init(jax.random.PRNGKey(0), T_)
-    buf = replay.init(ReplayConfig(capacity_transitions=4 * T_, her_k=4), T_)
+    buf = replay.init(ReplayConfig(capacity_transitions=4 * T_, her_k=4), T_, success_tau=0.01)
     k = jax.random.split(jax.random.PRNGKey(5), 4)
     episodes = {
         "z_obj": jax.random.normal(k[0], (4, T_ + 1, 6)),

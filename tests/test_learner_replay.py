@@ -38,13 +38,13 @@ def sample_fn():
 
 @pytest.fixture(scope="module")
 def filled(sample_fn):
-    buf = replay.init(ReplayConfig(capacity_transitions=16 * T, her_k=4, success_tau=TAU), T)
+    buf = replay.init(ReplayConfig(capacity_transitions=16 * T, her_k=4), T, success_tau=TAU)
     buf = replay.add(buf, make_episodes(jax.random.PRNGKey(0), 16))
     return buf, sample_fn(buf, jax.random.PRNGKey(1), 8192)
 
 
 def test_ring_buffer_wraps_modulo_capacity():
-    buf = replay.init(ReplayConfig(capacity_transitions=5 * T + 3), T)  # 5 whole episodes
+    buf = replay.init(ReplayConfig(capacity_transitions=5 * T + 3), T, success_tau=TAU)  # 5 whole episodes
     assert buf.capacity == 5
     add = jax.jit(replay.add)
     for i in range(3):  # 9 episodes in batches of 3: slots 0-2, 3-4 + 0, 1-3
@@ -57,13 +57,13 @@ def test_ring_buffer_wraps_modulo_capacity():
 
 
 def test_add_rejects_more_episodes_than_slots():
-    buf = replay.init(ReplayConfig(capacity_transitions=2 * T), T)
+    buf = replay.init(ReplayConfig(capacity_transitions=2 * T), T, success_tau=TAU)
     with pytest.raises(ValueError, match="cannot add 3 episodes"):
         replay.add(buf, make_episodes(jax.random.PRNGKey(0), 3))
 
 
 def test_invalid_episodes_are_never_sampled_and_not_stored(sample_fn):
-    buf = replay.init(ReplayConfig(capacity_transitions=12 * T, success_tau=TAU), T)
+    buf = replay.init(ReplayConfig(capacity_transitions=12 * T), T, success_tau=TAU)
     valid = np.array([1, 0, 0, 1, 0, 1, 1, 0, 0, 0], bool)  # two slots stay empty (invalid)
     eps = make_episodes(jax.random.PRNGKey(0), 10, valid=valid)
     eps["obj_xy"] = jnp.where(jnp.asarray(valid)[:, None, None], eps["obj_xy"], jnp.nan)  # a blown-up sim
@@ -116,6 +116,6 @@ def test_relabel_fraction_is_her_k_over_her_k_plus_one(filled, sample_fn):
     _, batch = filled
     frac = float(np.mean(np.asarray(batch["relabelled"])))
     assert abs(frac - 0.8) < 0.02, frac  # sd of the estimate is 0.0044 with 8192 samples
-    buf = replay.init(ReplayConfig(capacity_transitions=4 * T, her_k=0), T)
+    buf = replay.init(ReplayConfig(capacity_transitions=4 * T, her_k=0), T, success_tau=0.01)
     buf = replay.add(buf, make_episodes(jax.random.PRNGKey(3), 4))
     assert not np.any(np.asarray(sample_fn(buf, jax.random.PRNGKey(4), 512)["relabelled"]))

@@ -120,9 +120,10 @@ def test_a_finished_run_trained_longer_equals_a_run_of_that_length(full_run, tmp
     assert "has finished" in capsys.readouterr().out
 
 
-def _rewrite_checkpoint_120(d, cfg, toy, transform) -> None:
+def _rewrite_checkpoint_120(d, cfg, toy, transform, meta_transform=lambda meta: meta) -> None:
     """A run stopped after 3 batches, its checkpoint of 120 env steps written again as `transform` of its
-    state (what an older or a damaged release would have left), its record unchanged."""
+    state (what an older or a damaged release would have left), its record as `meta_transform` of it
+    (unchanged by default)."""
     import shutil
 
     import orbax.checkpoint as ocp
@@ -133,7 +134,9 @@ def _rewrite_checkpoint_120(d, cfg, toy, transform) -> None:
     meta = ckpts.manager.restore(120, args=ocp.args.Composite(meta=ocp.args.JsonRestore()))["meta"]
     shutil.rmtree(d / "checkpoints" / "120")
     ckpts = checkpoints.Checkpoints(d / "checkpoints")
-    saved = ocp.args.Composite(state=ocp.args.StandardSave(transform(state)), meta=ocp.args.JsonSave(meta))
+    saved = ocp.args.Composite(
+        state=ocp.args.StandardSave(transform(state)), meta=ocp.args.JsonSave(meta_transform(meta))
+    )
     ckpts.manager.save(120, args=saved, force=True)
     ckpts.manager.wait_until_finished()
 
@@ -158,6 +161,46 @@ def test_a_checkpoint_written_before_a_state_field_existed_resumes_exactly(full_
         jax.tree_util.tree_leaves_with_path(jax.device_get(resumed)), jax.tree_util.tree_leaves(full_state)
     ):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b), err_msg=jax.tree_util.keystr(path))
+
+
+def _with_task_copies(config: dict) -> dict:
+    """A config dict as written before the learner's copies of the task's facts were removed."""
+    old = json.loads(json.dumps(config))
+    old["train"]["loop"]["episode_len"] = old["env"]["episode_length"]
+    old["train"]["replay"]["success_tau"] = old["env"]["success_tau"]
+    return old
+
+
+def test_a_run_written_with_the_learners_copies_resumes_exactly(full_run, tmp_path, toy):
+    """A run directory of a release whose learner held copies of the task's facts (config.json and the
+    checkpoint's record with train.loop.episode_len and train.replay.success_tau) is the same
+    configuration: it resumes to the uninterrupted run's state, and its saved policies load."""
+    cfg, full_dir, _, full_state = full_run
+    d = tmp_path / "copies"
+    _rewrite_checkpoint_120(
+        d, cfg, toy, lambda state: state, lambda meta: {**meta, "config": _with_task_copies(meta["config"])}
+    )
+    (d / "config.json").write_text(json.dumps(_with_task_copies(json.loads((d / "config.json").read_text()))))
+    assert "episode_len" in json.loads((d / "config.json").read_text())["train"]["loop"]
+    assert run_mod._check_same_config(d, cfg) is None
+    _, resumed = run_mod.run(cfg, d, adapter=toy, resume=True)
+    for (path, a), b in zip(
+        jax.tree_util.tree_leaves_with_path(jax.device_get(resumed)), jax.tree_util.tree_leaves(full_state)
+    ):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b), err_msg=jax.tree_util.keystr(path))
+    old_policy = tmp_path / "old_policy"
+    old_policy.with_suffix(".msgpack").write_bytes((full_dir / "best_policy.msgpack").read_bytes())
+    record = json.loads((full_dir / "best_policy.json").read_text())
+    old_policy.with_suffix(".json").write_text(json.dumps({**record, "config": _with_task_copies(record["config"])}))
+    assert policies.load_policy(old_policy).config == cfg
+    # A record whose copy disagrees with its environment describes no one task: refused by name.
+    record["config"] = _with_task_copies(record["config"])
+    record["config"]["train"]["loop"]["episode_len"] = 7
+    old_policy.with_suffix(".json").write_text(json.dumps(record))
+    with pytest.raises(
+        ValueError, match=r"config\.train\.loop\.episode_len \(7\) differs from config\.env\.episode_length"
+    ):
+        policies.load_policy(old_policy)
 
 
 def test_a_checkpoint_whose_added_field_does_not_match_is_refused_not_defaulted(full_run, tmp_path, toy):
@@ -391,8 +434,27 @@ def test_success_tau_sets_the_environment_and_the_relabelling_radius():
     from mjx_push.cli import Train
 
     cfg = Train(agent="vpm", preset="reference", success_tau=0.05).config()
-    assert cfg.env.success_tau == cfg.train.replay.success_tau == 0.05
+    assert cfg.env.success_tau == 0.05  # the task's radius, which the learner reads from its environment
+    assert not hasattr(cfg.train.replay, "success_tau")  # no copy of it
     assert Train(agent="vpm", preset="reference").config().env.success_tau == 0.01
+
+
+def test_set_on_a_removed_copy_of_the_task_names_the_environments_field(capsys):
+    """`--set` on the learner's former copies of the task's facts says which field to set instead."""
+    for bad, says in (
+        (
+            "train.replay.success_tau=0.05",
+            "--set train.replay.success_tau: the learner reads the task's value from "
+            "the environment; set env.success_tau instead",
+        ),
+        (
+            "train.loop.episode_len=30",
+            "--set train.loop.episode_len: the learner reads the task's value from the "
+            "environment; set env.episode_length instead",
+        ),
+    ):
+        assert cli_main(["train", "--set", bad, "--run-dir", "/nonexistent/never"]) == 2
+        assert says in capsys.readouterr().err, bad
 
 
 def test_set_overrides_any_field_by_its_config_path(capsys):
@@ -444,7 +506,7 @@ def test_progress_lines_report_success_reward_and_final_distance():
         "eval/mean_reward": -40.0,
         "eval/final_distance": 0.123,
     }
-    with TrainProgress(Console(file=out, width=200), LoopConfig(), enabled=False) as bar:
+    with TrainProgress(Console(file=out, width=200), LoopConfig(), 50, enabled=False) as bar:
         bar.update(m)
     line = out.getvalue()
     assert "500 env steps: train success 10% reward -45.0 final dist 8.8 cm" in line

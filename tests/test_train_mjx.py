@@ -124,7 +124,6 @@ def test_the_actor_learns_the_experts_pushes_on_the_pushing_scene(encoder_file, 
         replay=dataclasses.replace(base.train.replay, capacity_transitions=20_000),
         loop=LoopConfig(
             num_envs=16,
-            episode_len=T,
             total_env_steps=16 * T * 10,
             warmup_env_steps=16 * T,
             utd=0.5,
@@ -145,7 +144,7 @@ def test_the_actor_learns_the_experts_pushes_on_the_pushing_scene(encoder_file, 
         if ("backend_compile" in event and secs > 0.5) or "cache_retrieval" in event:
             compiles.append((event, round(secs, 2)))
 
-    for i in range(t.loop.num_iterations):
+    for i in range(t.loop.num_iterations(T)):
         if i == 1:
             jax.monitoring.register_event_duration_secs_listener(on_event)
         state, m = runner.iteration(state)

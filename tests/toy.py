@@ -32,6 +32,7 @@ def latent_map(seed: int, bound: float) -> jax.Array:
 
 def make_toy(
     success_tau: float = 0.025,
+    episode_len: int = 10,
     step_size: float = 0.05,
     bound: float = 0.15,
     seed: int = 0,
@@ -39,9 +40,9 @@ def make_toy(
     substep_chunk: int = 0,
     max_substeps: int = 8,
 ) -> EnvAdapter:
-    """The toy adapter. ``success_tau`` is the task's success radius; the learner computes rewards
-    from ``obj_xy`` / ``goal_xy`` with ``ReplayConfig.success_tau``, and ``make_train`` checks that the
-    two agree. ``invalid_prob`` flags random steps invalid, to exercise the handling of broken
+    """The toy adapter. ``success_tau`` and ``episode_len`` are the task's success radius and episode
+    length, which the learner reads from the adapter (it computes rewards from ``obj_xy`` / ``goal_xy``
+    at that radius). ``invalid_prob`` flags random steps invalid, to exercise the handling of broken
     simulations. A larger tolerance than the real task's 1 cm keeps learning fast in tests.
 
     ``substep_chunk`` > 0 gives the adapter a ``SubstepScheduler``: a step then lasts 1..``max_substeps``
@@ -87,4 +88,12 @@ def make_toy(
     scheduler = None
     if substep_chunk:
         scheduler = SubstepScheduler(begin, advance, lambda s: s.left == 0, finish, substep_chunk)
-    return EnvAdapter(reset=reset, step=step, success_tau=success_tau, scheduler=scheduler, priv_dim=2, expert=expert)
+    return EnvAdapter(
+        reset=reset,
+        step=step,
+        success_tau=success_tau,
+        episode_len=episode_len,
+        scheduler=scheduler,
+        priv_dim=2,
+        expert=expert,
+    )

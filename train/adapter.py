@@ -8,7 +8,8 @@ runs the toy task of the tests (tests/toy.py) and the MJX pushing scene (train/p
   ``goal_xy [N, 2]``};
 * ``step(env_state, action [N, 3] in [-1, 1]) -> (env_state, step_obs, invalid [N] bool)``. An
   episode with any invalid step is stored with ``valid=False`` and never sampled;
-* optionally ``success_tau``, the task's success radius, checked against ``replay.success_tau``;
+* ``success_tau`` and ``episode_len``, the task's success radius (metres) and episode length (steps):
+  the learner's rewards, relabelled or not, and its episodes follow them (the learner has no copies);
 * optionally ``scheduler`` (``SubstepScheduler``), the step in phases for asynchronous rollouts;
 * optionally ``priv_dim`` > 0: ``step_obs["priv"]`` is the ground-truth state a privileged critic
   reads (its first two numbers are the object's xy);
@@ -64,9 +65,10 @@ class SubstepScheduler:
 class EnvAdapter:
     reset: Callable[[jax.Array, int], tuple[Any, dict, dict]]
     step: Callable[[Any, jax.Array], tuple[Any, dict, jax.Array]]
-    # The task's success radius, if the environment defines one: make_train checks that the learner's
-    # reward (ReplayConfig.success_tau) uses the same, so relabelled rewards match the task's.
-    success_tau: float | None = None
+    # The task's facts, the environment's: its success radius (the learner's rewards, relabelled or not,
+    # are the task's sparse reward at it) and its episode length (the steps of every episode collected).
+    success_tau: float
+    episode_len: int
     # When set, rollouts step the environments asynchronously through it; the episodes are the same
     # as with ``step`` (every random draw is keyed by environment and step), only faster.
     scheduler: SubstepScheduler | None = None

@@ -195,10 +195,11 @@ class SACConfig:
 class ReplayConfig:
     capacity_transitions: int = 300_000
     her_k: int = 4  # relabel probability her_k / (her_k + 1)
-    success_tau: float = 0.01  # metres; reward is -1 while the object is this far or farther from the goal
+    # The reward is -1 while the object is at least the task's success radius (the environment's, read
+    # from the learner's EnvAdapter) from the goal, else 0.
     # Success-radius curriculum for the learner's rewards: the radius falls linearly from
-    # curriculum_tau (None: no curriculum) to success_tau over the first curriculum_env_steps env steps
-    # after the warm-up. Evaluation always scores at the task's radius.
+    # curriculum_tau (None: no curriculum) to the task's radius over the first curriculum_env_steps env
+    # steps after the warm-up. Evaluation always scores at the task's radius.
     curriculum_tau: float | None = None
     curriculum_env_steps: int = 0
 
@@ -210,12 +211,11 @@ class ReplayConfig:
             "an int >= 0",
             self.her_k,
         )
-        _check(math.isfinite(self.success_tau) and self.success_tau > 0, "replay.success_tau", "> 0", self.success_tau)
         if self.curriculum_tau is not None:
             _check(
-                math.isfinite(self.curriculum_tau) and self.curriculum_tau >= self.success_tau,
+                math.isfinite(self.curriculum_tau) and self.curriculum_tau > 0,
                 "replay.curriculum_tau",
-                f"None or a number >= replay.success_tau ({self.success_tau})",
+                "None or a number > 0 (metres)",
                 self.curriculum_tau,
             )
             _positive_int("replay.curriculum_env_steps", self.curriculum_env_steps)
@@ -226,12 +226,13 @@ class ReplayConfig:
             self.curriculum_env_steps,
         )
 
-    def reward_tau(self, env_steps_after_warmup):
-        """The learner's success radius after this many env steps past the warm-up (traced or not)."""
+    def reward_tau(self, env_steps_after_warmup, success_tau: float):
+        """The learner's success radius after this many env steps past the warm-up (traced or not), for
+        a task of success radius ``success_tau``."""
         if self.curriculum_tau is None:
-            return self.success_tau
+            return success_tau
         frac = jnp.clip(env_steps_after_warmup / self.curriculum_env_steps, 0.0, 1.0)
-        return self.curriculum_tau + (self.success_tau - self.curriculum_tau) * frac
+        return self.curriculum_tau + (success_tau - self.curriculum_tau) * frac
 
     @property
     def relabel_prob(self) -> float:
@@ -353,7 +354,6 @@ class DemoConfig:
 @dataclasses.dataclass(frozen=True)
 class LoopConfig:
     num_envs: int = 1
-    episode_len: int = 50
     total_env_steps: int = 29_000
     warmup_env_steps: int = 10_000  # uniform random actions, no learning, before this many env steps
     utd: float = 1.0  # gradient updates per env step of ONE env: a batch of N env steps gives N * utd updates
@@ -380,7 +380,6 @@ class LoopConfig:
             f"a multiple of loop.data_parallel ({self.data_parallel})",
             self.num_envs,
         )
-        _positive_int("loop.episode_len", self.episode_len)
         _positive_int("loop.total_env_steps", self.total_env_steps)
         _check(
             isinstance(self.warmup_env_steps, int) and self.warmup_env_steps >= 0,
@@ -399,26 +398,16 @@ class LoopConfig:
             "an int",
             self.eval_seed,
         )
-        # The number of updates per episode batch is a static scan length, so it must be whole.
-        n = self.num_envs * self.episode_len * self.utd
-        _check(
-            abs(n - round(n)) < 1e-6,
-            "loop.utd",
-            f"such that num_envs * episode_len * utd is a whole number (it is {n})",
-            self.utd,
-        )
 
-    @property
-    def env_steps_per_iteration(self) -> int:
-        return self.num_envs * self.episode_len
+    # The counts of a batch of episodes of the task's length (the environment's, `EnvAdapter.episode_len`).
+    def env_steps_per_iteration(self, episode_len: int) -> int:
+        return self.num_envs * episode_len
 
-    @property
-    def updates_per_iteration(self) -> int:
-        return int(round(self.num_envs * self.episode_len * self.utd))
+    def updates_per_iteration(self, episode_len: int) -> int:
+        return int(round(self.num_envs * episode_len * self.utd))
 
-    @property
-    def num_iterations(self) -> int:
-        return -(-self.total_env_steps // self.env_steps_per_iteration)
+    def num_iterations(self, episode_len: int) -> int:
+        return -(-self.total_env_steps // self.env_steps_per_iteration(episode_len))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -438,14 +427,6 @@ class TrainConfig:
             ("demo", DemoConfig),
         ):
             _check(isinstance(getattr(self, name), cls), name, f"a {cls.__name__}", getattr(self, name))
-        # The ring buffer stores whole episodes; one collection batch must fit without overwriting itself.
-        capacity_episodes = self.replay.capacity_transitions // self.loop.episode_len
-        _check(
-            capacity_episodes >= self.loop.num_envs,
-            "replay.capacity_transitions",
-            f"at least loop.num_envs * loop.episode_len = {self.loop.num_envs * self.loop.episode_len}",
-            self.replay.capacity_transitions,
-        )
         _check(
             self.sac.bc_weight == 0 or self.demo.enabled,
             "sac.bc_weight",
@@ -485,6 +466,34 @@ class TrainConfig:
                 self.demo.anneal_end,
             )
 
+    def check_task(self, episode_len: int, success_tau: float) -> None:
+        """The checks that need the task's facts, the environment's episode length and success radius
+        (``make_train`` reads them from its adapter; ``RunConfig`` from its ``env``). Raises ConfigError
+        naming the learner's field."""
+        loop, replay = self.loop, self.replay
+        # The number of updates per episode batch is a static scan length, so it must be whole.
+        n = loop.num_envs * episode_len * loop.utd
+        _check(
+            abs(n - round(n)) < 1e-6,
+            "loop.utd",
+            f"such that num_envs * episode_len ({episode_len}, the task's) * utd is a whole number (it is {n})",
+            loop.utd,
+        )
+        # The ring buffer stores whole episodes; one collection batch must fit without overwriting itself.
+        _check(
+            replay.capacity_transitions // episode_len >= loop.num_envs,
+            "replay.capacity_transitions",
+            f"at least loop.num_envs * the task's episode length = {loop.num_envs * episode_len}",
+            replay.capacity_transitions,
+        )
+        if replay.curriculum_tau is not None:
+            _check(
+                replay.curriculum_tau >= success_tau,
+                "replay.curriculum_tau",
+                f"None or a number >= the task's success radius ({success_tau})",
+                replay.curriculum_tau,
+            )
+
 
 Preset = Literal["smoke", "cpu", "cpu-long", "teacher-free", "reference", "paper"]  # defined here once
 PRESETS: tuple[str, ...] = get_args(Preset)
@@ -511,12 +520,6 @@ class RunConfig:
             raise ConfigError(f"preset must be one of {PRESETS}, got {self.preset!r}")
         if self.train.agent.kind != self.agent:
             raise ConfigError(f"train.agent.kind ({self.train.agent.kind!r}) must equal agent ({self.agent!r})")
-        if self.train.loop.episode_len != self.env.episode_length:
-            raise ConfigError(
-                f"train.loop.episode_len ({self.train.loop.episode_len}) must equal env.episode_length "
-                f"({self.env.episode_length})"
-            )
-        if abs(self.train.replay.success_tau - self.env.success_tau) > 1e-12:
-            raise ConfigError("train.replay.success_tau must equal env.success_tau")
+        self.train.check_task(self.env.episode_length, self.env.success_tau)  # the learner's checks on the task
         if self.env.objects.shape == "any" and self.train.loop.num_envs < 2:
             raise ConfigError("train.loop.num_envs must be >= 2 with shape filter 'any' (one group per shape)")

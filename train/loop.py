@@ -105,12 +105,9 @@ def improves(reward, success, best_reward, best_success):
 
 def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) -> Trainer:
     loop, sac_cfg = config.loop, config.sac
-    if adapter.success_tau is not None and abs(adapter.success_tau - config.replay.success_tau) > 1e-12:
-        raise ConfigError(
-            f"replay.success_tau must equal the environment's success radius {adapter.success_tau}, "
-            f"got {config.replay.success_tau}"
-        )
-    T, N = loop.episode_len, loop.num_envs
+    # The task's facts are the environment's: the learner reads them from its adapter only.
+    T, N, success_tau = adapter.episode_len, loop.num_envs, adapter.success_tau
+    config.check_task(T, success_tau)
     # Data parallel (train/data_parallel.py): these functions are one device's share of the run, N_dev
     # environments, a replay shard and a shard of every batch, with gradients averaged over `axis`.
     D = loop.data_parallel
@@ -151,9 +148,10 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
     store_labels = demo_cfg.enabled
 
     # Iterations that run updates: those ending at or after the warm-up (for the lr decay horizon).
-    first_learning_iteration = max(1, -(-loop.warmup_env_steps // loop.env_steps_per_iteration))
-    learning_iterations = max(0, loop.num_iterations - first_learning_iteration + 1)
-    total_updates = learning_iterations * loop.updates_per_iteration
+    steps_per_batch, updates_per_batch = loop.env_steps_per_iteration(T), loop.updates_per_iteration(T)
+    first_learning_iteration = max(1, -(-loop.warmup_env_steps // steps_per_batch))
+    learning_iterations = max(0, loop.num_iterations(T) - first_learning_iteration + 1)
+    total_updates = learning_iterations * updates_per_batch
     update = make_update(
         config.agent, sac_cfg, action_dim, total_updates=max(total_updates, 1), nets=nets, axis_name=axis
     )
@@ -165,7 +163,7 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
         sac_state = init_state(k_sac, nets, sac_cfg, T, total_updates=max(total_updates, 1))
         return TrainState(
             sac=sac_state,
-            buffer=replay.init(replay_cfg, T, action_dim, stored_priv_dim, store_labels),
+            buffer=replay.init(replay_cfg, T, action_dim, stored_priv_dim, store_labels, success_tau=success_tau),
             key=k_loop,
             env_steps=jnp.zeros((), jnp.int32),
             best_actor_params=jax.tree.map(jnp.copy, sac_state.actor_params),  # no alias (donation)
@@ -192,7 +190,7 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
             )
             return update(s, batch, k_update, demo, bc_scale, anchor if anchored else None, anchor_scale)
 
-        sac_state, metrics = jax.lax.scan(body, sac_state, jax.random.split(key, loop.updates_per_iteration))
+        sac_state, metrics = jax.lax.scan(body, sac_state, jax.random.split(key, updates_per_batch))
         metrics = jax.tree.map(jnp.mean, metrics)
         if axis is not None:  # the devices' means, once per batch (not per update)
             metrics = data_parallel.flat_pmean(metrics, axis)
@@ -236,13 +234,15 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
             seen = episodes if axis is None else jax.lax.all_gather(episodes, axis, tiled=True)
             norm_stats = normalizer.update_stats(norm_stats, seen, agent.critic_obs)
             sac_state = with_norm(sac_state, norm_stats)
-        tau = config.replay.reward_tau(jnp.maximum(env_steps - loop.warmup_env_steps, 0).astype(jnp.float32))
+        tau = config.replay.reward_tau(
+            jnp.maximum(env_steps - loop.warmup_env_steps, 0).astype(jnp.float32), success_tau
+        )
         anchor = ts.anchor_actor_params
         anchor_scale = demo_cfg.anchor_scale(env_steps)
         args = (sac_state, buffer, k_update, tau, bc_scale, anchor, anchor_scale)
         update_metrics_shape = jax.eval_shape(run_updates, *args)[1]
         skip_metrics = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), update_metrics_shape)
-        if loop.updates_per_iteration > 0:
+        if updates_per_batch > 0:
             sac_state, update_metrics = jax.lax.cond(learn, run_updates, lambda s, *_: (s, skip_metrics), *args)
         else:
             update_metrics = skip_metrics
@@ -457,10 +457,10 @@ class Runner:
     def is_eval_iteration(self, i: int) -> bool:
         """Evaluate after iteration ``i`` (0-based) when it crosses a multiple of eval_every_env_steps,
         and after the last one."""
-        loop = self.trainer.config.loop
-        steps, every = (i + 1) * loop.env_steps_per_iteration, loop.eval_every_env_steps
-        crossed = steps // every > (steps - loop.env_steps_per_iteration) // every
-        return crossed or i == loop.num_iterations - 1
+        loop, T = self.trainer.config.loop, self.trainer.adapter.episode_len
+        steps, every = (i + 1) * loop.env_steps_per_iteration(T), loop.eval_every_env_steps
+        crossed = steps // every > (steps - loop.env_steps_per_iteration(T)) // every
+        return crossed or i == loop.num_iterations(T) - 1
 
 
 def train(
@@ -482,12 +482,12 @@ def train(
     """
     if runner is None:
         runner = Runner(trainer if trainer is not None else make_train(config, adapter))
-    loop = config.loop
+    loop, T = config.loop, runner.trainer.adapter.episode_len
     ts = state if state is not None else runner.init(key)
 
     history: list[dict] = []
-    start = int(ts.env_steps) // loop.env_steps_per_iteration
-    for i in range(start, loop.num_iterations):
+    start = int(ts.env_steps) // loop.env_steps_per_iteration(T)
+    for i in range(start, loop.num_iterations(T)):
         ts, metrics = runner.iteration(ts)
         if runner.is_eval_iteration(i):
             ts, eval_metrics = runner.eval_and_select(ts)

@@ -172,8 +172,8 @@ def make(agent: str, preset: str = "cpu", seed: int = 0) -> RunConfig:
     train = TrainConfig(
         agent=AgentConfig(agent, **p["agent"]),
         sac=SACConfig(**p["sac"]),
-        replay=ReplayConfig(capacity_transitions=p["replay"], success_tau=env.success_tau),
-        loop=LoopConfig(episode_len=env.episode_length, seed=seed, **p["loop"]),
+        replay=ReplayConfig(capacity_transitions=p["replay"]),
+        loop=LoopConfig(seed=seed, **p["loop"]),
         demo=p["demo"],
     )
     return RunConfig(agent=agent, preset=preset, train=train, env=env, expert=p.get("expert", ExpertConfig()))
@@ -202,9 +202,18 @@ def parse_overrides(items) -> dict:
     return out
 
 
-# Facts of the task the environment defines and the (task-agnostic) learner reads a copy of: the copy
-# is always the environment's value, so a user sets each once, on the environment.
-TASK_FACTS = {"train.loop.episode_len": "env.episode_length", "train.replay.success_tau": "env.success_tau"}
+# Fields the learner's configuration once held, copies of facts of the task the environment defines
+# (the learner now reads them from its adapter), with the field that holds each. Records written before
+# (config.json, checkpoints, saved and exported policies) still carry them: `config_from_dict` drops a
+# copy equal to the environment's value and refuses one that differs; `--set` on one names its source.
+REMOVED_TASK_COPIES = {"train.loop.episode_len": "env.episode_length", "train.replay.success_tau": "env.success_tau"}
+
+
+def _same(a, b) -> bool:
+    try:
+        return abs(float(a) - float(b)) <= 1e-12
+    except (TypeError, ValueError):
+        return a == b
 
 
 def set_flag(overrides: dict | None) -> str:
@@ -218,15 +227,18 @@ def set_flag(overrides: dict | None) -> str:
 
 def with_overrides(cfg: RunConfig, overrides: dict) -> RunConfig:
     """``cfg`` with the fields at dotted paths (``train.sac.bc_weight``, ``env.controller.gain``, ...)
-    replaced and validated once all are set. The learner's copies of the task's facts (TASK_FACTS)
-    follow the environment's fields; setting a copy to another value is refused, naming the field to
-    set instead. Raises ConfigError naming an unknown path or a bad value."""
+    replaced and validated once all are set. The task's facts are the environment's fields alone: a
+    removed learner's copy (REMOVED_TASK_COPIES) set to another value than its source is refused,
+    naming the field to set instead (the same value is ignored). Raises ConfigError naming an unknown
+    path or a bad value."""
     d = configio.to_dict(cfg)
-    for copy, source in TASK_FACTS.items():
-        if copy in overrides and overrides[copy] != overrides.get(source, _at(d, source)):
-            raise ConfigError(f"--set {copy}: it is the environment's {source}, copied; set {source} instead")
+    for copy, source in REMOVED_TASK_COPIES.items():
+        if copy in overrides and not _same(overrides[copy], overrides.get(source, _at(d, source))):
+            raise ConfigError(
+                f"--set {copy}: the learner reads the task's value from the environment; set {source} instead"
+            )
     for dotted, value in overrides.items():
-        if dotted in TASK_FACTS:
+        if dotted in REMOVED_TASK_COPIES:
             continue
         *parents, leaf = dotted.split(".")
         node = d
@@ -237,9 +249,6 @@ def with_overrides(cfg: RunConfig, overrides: dict) -> RunConfig:
         if leaf not in node:
             raise ConfigError(f"--set {dotted}: unknown setting (no field {leaf!r})")
         node[leaf] = value
-    for copy, source in TASK_FACTS.items():
-        *parents, leaf = copy.split(".")
-        _at(d, ".".join(parents))[leaf] = _at(d, source)
     return configio.from_dict(RunConfig, d, "config")
 
 
@@ -255,7 +264,36 @@ def config_dict(cfg: RunConfig) -> dict:
 
 
 def config_from_dict(d: dict) -> RunConfig:
-    return configio.from_dict(RunConfig, d, "config")
+    return configio.from_dict(RunConfig, without_task_copies(d), "config")
+
+
+def without_task_copies(d: dict) -> dict:
+    """Config dict ``d`` without the learner's former copies of the task's facts (REMOVED_TASK_COPIES),
+    as records written before their removal hold them: a copy equal to the environment's value is
+    dropped, one that differs is refused by name (such a record does not describe one task). ``d`` is
+    left as it is."""
+    if not isinstance(d, dict):
+        return d
+    out = None
+    for copy, source in REMOVED_TASK_COPIES.items():
+        (section, part, leaf), (env_key, env_field) = copy.split("."), source.split(".")
+        node = d.get(section, {}).get(part) if isinstance(d.get(section), dict) else None
+        if not isinstance(node, dict) or leaf not in node:
+            continue
+        env = d.get(env_key) if isinstance(d.get(env_key), dict) else {}
+        if env_field in env:
+            value = env[env_field]
+        else:  # a record that leaves the field to its default
+            value = getattr(EnvConfig(), env_field)
+        if not _same(node[leaf], value):
+            raise ConfigError(
+                f"config.{copy} ({node[leaf]!r}) differs from config.{source} ({value!r}): the record "
+                f"describes two tasks; the learner reads {source} alone (make {copy} equal it, or remove it)"
+            )
+        if out is None:
+            out = json.loads(json.dumps(d))  # a deep copy of plain data
+        del out[section][part][leaf]
+    return d if out is None else out
 
 
 def load_config(path: Path) -> RunConfig:

@@ -184,6 +184,7 @@ def make_push_adapter(
         reset=reset,
         step=step,
         success_tau=env_config.success_tau,
+        episode_len=env_config.episode_length,
         scheduler=SubstepScheduler(begin, advance, ready, finish, substep_chunk) if substep_chunk else None,
         priv_dim=PRIV_DIM,
         expert=expert,

@@ -37,8 +37,8 @@ Episodes = dict  # name -> array with a leading episode axis, fields as in the m
 class ReplayBuffer:
     data: Episodes  # every leaf has a leading [capacity] axis
     count: jax.Array  # int32: episodes ever added; the next write goes to slot count % capacity
+    success_tau: float = flax.struct.field(pytree_node=False)  # the task's success radius (its rewards)
     her_k: int = flax.struct.field(pytree_node=False, default=4)
-    success_tau: float = flax.struct.field(pytree_node=False, default=0.01)
 
     @property
     def capacity(self) -> int:
@@ -72,8 +72,16 @@ def episode_spec(
 
 
 def init(
-    config: ReplayConfig, episode_len: int, action_dim: int = 3, priv_dim: int = 0, expert_labels: bool = False
+    config: ReplayConfig,
+    episode_len: int,
+    action_dim: int = 3,
+    priv_dim: int = 0,
+    expert_labels: bool = False,
+    *,
+    success_tau: float,
 ) -> ReplayBuffer:
+    """An empty buffer of episodes of ``episode_len`` steps of a task of success radius ``success_tau``
+    (both the environment's: ``make_train`` reads them from its adapter)."""
     capacity = config.capacity_transitions // episode_len
     if capacity < 1:
         raise ConfigError(
@@ -82,7 +90,7 @@ def init(
         )
     spec = episode_spec(episode_len, action_dim, priv_dim, expert_labels)
     data = {k: jnp.zeros((capacity,) + shape, dtype) for k, (shape, dtype) in spec.items()}
-    return ReplayBuffer(data=data, count=jnp.zeros((), jnp.int32), her_k=config.her_k, success_tau=config.success_tau)
+    return ReplayBuffer(data=data, count=jnp.zeros((), jnp.int32), her_k=config.her_k, success_tau=success_tau)
 
 
 def add(buffer: ReplayBuffer, episodes: Episodes) -> ReplayBuffer:

@@ -65,7 +65,7 @@ def episode_means(stats: dict, n: int | None = None) -> dict:
 
 def make_collect(config: TrainConfig, adapter: EnvAdapter, nets: Networks):
     """``collect`` for ``config``'s learner on ``adapter`` (see the module's docstring)."""
-    T = config.loop.episode_len
+    T = adapter.episode_len  # the task's
     demo_cfg = config.demo
     stored_priv_dim = adapter.priv_dim if config.agent.critic_obs == "privileged" else 0
     # Behaviour cloning learns from the expert's noise-free action at every stored step: on
@@ -200,6 +200,6 @@ def make_collect(config: TrainConfig, adapter: EnvAdapter, nets: Networks):
             episodes["priv"] = with_reset("priv")
         if "expert_action" in records:
             episodes["expert_action"] = records["expert_action"]
-        return episodes, episode_stats(episodes, config.replay.success_tau)
+        return episodes, episode_stats(episodes, adapter.success_tau)
 
     return collect

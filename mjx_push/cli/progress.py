@@ -22,11 +22,13 @@ def _duration(seconds: float) -> str:
 
 
 class TrainProgress:
-    def __init__(self, console: Console, loop: LoopConfig, enabled: bool = True, log_every_s: float = 30.0):
+    def __init__(
+        self, console: Console, loop: LoopConfig, episode_len: int, enabled: bool = True, log_every_s: float = 30.0
+    ):
         self.loop = loop
         self.enabled = enabled
         self.console = console
-        self.total = loop.num_iterations * loop.env_steps_per_iteration
+        self.total = loop.num_iterations(episode_len) * loop.env_steps_per_iteration(episode_len)
         self.plain = not console.is_terminal  # a log file: whole lines, no bar
         self.log_every_s = log_every_s
         self.bar = Progress(

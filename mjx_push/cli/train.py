@@ -118,7 +118,7 @@ class Train:
             else:  # the source's configuration, which only the options given here change
                 cfg = self._fork_base()
             typed = {f"train.{field}": getattr(self, name) for name, field in self._FIELDS.items()}
-            typed["env.success_tau"] = self.success_tau  # the learner's relabelling radius follows it
+            typed["env.success_tau"] = self.success_tau  # the task's, so the learner's rewards too
             cfg = presets.with_overrides(cfg, {k: v for k, v in typed.items() if v is not None})
             if self.encoder is not None:
                 cfg = dataclasses.replace(cfg, encoder=str(self.encoder))
@@ -152,7 +152,6 @@ class Train:
         names.update(
             {
                 "env.success_tau": "--success-tau",
-                "replay.success_tau": "--success-tau",
                 "success_tau": "--success-tau",
                 "substep_chunk": "--substep-chunk",
                 "checkpoint_every": "--checkpoint-every",
@@ -196,13 +195,13 @@ class Train:
 
         def header(start: run_mod.Start) -> None:
             """Printed once the run's rules hold (`mjx_push.train.runs.run.run` checks them)."""
-            loop = cfg.train.loop
+            loop, T = cfg.train.loop, cfg.env.episode_length
             if self.resume and self.total_env_steps is not None:
                 console.print(f"training {run_dir} to {loop.total_env_steps:,} env steps in all", soft_wrap=True)
             console.print(
                 f"[bold]mjx-push train[/] {cfg.agent} ({cfg.preset}): {loop.num_envs} envs, "
                 f"{loop.total_env_steps:,} env steps, {loop.warmup_env_steps:,} warm-up, "
-                f"{loop.updates_per_iteration} updates per batch of {loop.env_steps_per_iteration} steps; "
+                f"{loop.updates_per_iteration(T)} updates per batch of {loop.env_steps_per_iteration(T)} steps; "
                 f"run dir {run_dir}",
                 soft_wrap=True,
             )
@@ -220,7 +219,12 @@ class Train:
 
         try:
             with (
-                TrainProgress(console, cfg.train.loop, enabled=self.progress and data_parallel.is_primary()) as bar,
+                TrainProgress(
+                    console,
+                    cfg.train.loop,
+                    cfg.env.episode_length,
+                    enabled=self.progress and data_parallel.is_primary(),
+                ) as bar,
                 flag_errors(self._flag_names()),
             ):
                 summary, _ = run_mod.run(

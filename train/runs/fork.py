@@ -40,7 +40,6 @@ FIXED = (
     "encoder",
     "train.replay.capacity_transitions",
     "train.loop.num_envs",
-    "train.loop.episode_len",
     "train.loop.data_parallel",
     "env.episode_length",
 )

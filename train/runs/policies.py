@@ -76,7 +76,7 @@ def load_policy(path: Path) -> Policy:
     from mjx_push.train.networks import make_networks
 
     nets = make_networks(config.train.agent)
-    actor_t = jax.eval_shape(lambda: nets.init_actor(jax.random.PRNGKey(0), config.train.loop.episode_len))
+    actor_t = jax.eval_shape(lambda: nets.init_actor(jax.random.PRNGKey(0), config.env.episode_length))
     encoder_t = enc._template()
     for name, template in (("actor", actor_t), ("encoder", encoder_t)):
         if name not in blob:

@@ -113,8 +113,8 @@ def finished_summary(run_dir: Path, cfg: RunConfig) -> dict | None:
     path = run_dir / "summary.json"
     if not path.is_file():
         return None
-    loop = cfg.train.loop
-    if max(saved_steps(run_dir / "checkpoints"), default=-1) < loop.num_iterations * loop.env_steps_per_iteration:
+    loop, T = cfg.train.loop, cfg.env.episode_length
+    if max(saved_steps(run_dir / "checkpoints"), default=-1) < loop.num_iterations(T) * loop.env_steps_per_iteration(T):
         return None
     try:
         return json.loads(path.read_text())
@@ -278,6 +278,14 @@ def _run_locked(
         # Data parallel: each device steps its own environments (no split of a batch over devices).
         max_devices = 1 if loop.data_parallel > 1 else None
         adapter = make_push_adapter(cfg.env, encoder_params, chunk, cfg.expert, max_devices=max_devices)
+    # The learner reads the task's facts from the adapter; the run's record (config.json) from env.
+    T = cfg.env.episode_length
+    if (adapter.episode_len, adapter.success_tau) != (T, cfg.env.success_tau):
+        raise ConfigError(
+            f"the environment given has episodes of {adapter.episode_len} steps and success radius "
+            f"{adapter.success_tau}; the run's env.episode_length and env.success_tau are "
+            f"{T} and {cfg.env.success_tau}"
+        )
     trainer = make_train(cfg.train, adapter)
     runner = Runner(trainer)
     ckpts = Checkpoints(run_dir / "checkpoints")
@@ -302,13 +310,13 @@ def _run_locked(
         """After each batch (and its evaluation): timing, logs, checkpoints; True stops the run."""
         dt, metrics["wall_s"] = clock.tick()
         metrics["iteration_s"] = dt
-        metrics["env_steps_per_s"] = loop.env_steps_per_iteration / dt
-        metrics["updates_per_s"] = (loop.updates_per_iteration / dt) if metrics["learning"] else 0.0
+        metrics["env_steps_per_s"] = loop.env_steps_per_iteration(T) / dt
+        metrics["updates_per_s"] = (loop.updates_per_iteration(T) / dt) if metrics["learning"] else 0.0
         log.write(metrics)
         if on_iteration is not None and primary:
             on_iteration(metrics)
-        i = int(ts.env_steps) // loop.env_steps_per_iteration - 1
-        last = i == loop.num_iterations - 1
+        i = int(ts.env_steps) // loop.env_steps_per_iteration(T) - 1
+        last = i == loop.num_iterations(T) - 1
         interrupted = stop is not None and stop.requested is not None
         if last or interrupted or "eval/mean_reward" in metrics or (i + 1) % checkpoint_every == 0:
             ckpts.save(ts, cfg, {"history_rows": len(log.rows)})
@@ -318,7 +326,7 @@ def _run_locked(
         state, _ = train_loop(None, cfg.train, adapter, callback=on_batch, state=state, runner=runner)
     finally:
         log.close()
-    if int(state.env_steps) < loop.num_iterations * loop.env_steps_per_iteration:
+    if int(state.env_steps) < loop.num_iterations(T) * loop.env_steps_per_iteration(T):
         stopped = {"stopped_at_env_steps": int(state.env_steps)}
         if stop is not None and stop.requested is not None:
             stopped.update(interrupted_at_env_steps=int(state.env_steps), signal=stop.requested)
@@ -352,7 +360,7 @@ def _run_locked(
         "updates": int(state.sac.step),
         "wall_s": time.perf_counter() - clock.start,
         "first_batch_s": clock.first_batch_s,
-        "steady_env_steps_per_s": (loop.env_steps_per_iteration / np.mean(steady)) if steady else None,
+        "steady_env_steps_per_s": (loop.env_steps_per_iteration(T) / np.mean(steady)) if steady else None,
         "resumed_from_env_steps": resumed_from,
         **({"forked_from": forked} if (forked := read_record(run_dir)) is not None else {}),
         **({"trained_longer_from_env_steps": earlier_total} if earlier_total is not None else {}),
