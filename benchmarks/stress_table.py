@@ -52,9 +52,8 @@ def table() -> str:
     for name, rec in rows:
         c = rec["config"]
         lines.append(
-            f"- {name}: {rec.get('source', rec['policy'])}, {c['episodes']} episodes per cell and shape "
-            f"({', '.join(c['shapes'])}), levels {', '.join(c['levels'])}, seed {c['seed']}, "
-            f"{rec['wall_s'] / 60:.0f} min."
+            f"- {name}: `{rec.get('source', rec['policy'])}`, {c['episodes']} episodes per cell and shape, "
+            f"{'/'.join(c['levels'])}, seed {c['seed']}, {rec['wall_s'] / 60:.0f} min."
         )
     return "\n".join(lines)
 

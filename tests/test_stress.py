@@ -205,6 +205,8 @@ def test_stress_suite_end_to_end_for_a_policy_and_the_expert(envs, encoder_file,
     assert "= clean" in stress.format_table(ex)
     summary = stress.format_summary([res, ex])
     assert summary.splitlines()[0] == "| policy | clean | noise floor | score | mask_flip | latency |"
+    expert_row = summary.splitlines()[-1].split(" | ")
+    assert expert_row[3].endswith("(rows it meets)") and expert_row[4] == "="  # mask_flip cannot reach it
 
 
 def test_stress_command_refuses_bad_options_by_name(capsys):
