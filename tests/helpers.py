@@ -10,6 +10,7 @@ import numpy as np
 
 from mjx_push import objects, scene
 from mjx_push.env import EnvConfig, PushEnv
+from tests.toy import TAU as TOY_TAU  # one toy radius for the tests and the learning checks
 
 B = 4  # every physics test uses this batch size, so each compiled function is built once
 HOME_XY = scene.home_flange_pos()[:2]
@@ -98,9 +99,6 @@ def tiny_run_config(agent: str, encoder_path: str):
         ),
     )
     return dataclasses.replace(cfg, env=env, train=t, encoder=encoder_path)
-
-
-TOY_TAU = 0.025
 
 
 def toy_run_config(encoder, kind="ugru", seed=0):

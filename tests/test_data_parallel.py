@@ -20,9 +20,8 @@ from jax.sharding import Mesh, PartitionSpec as P
 from mjx_push import xla
 from mjx_push.env import EnvConfig
 from mjx_push.errors import ConfigError
-from tests.test_learner_loop import TAU, toy_config
 from tests.test_learner_sac import KEY
-from tests.toy import make_toy
+from tests.toy import TAU, make_toy, toy_config
 from mjx_push.train import data_parallel
 from mjx_push.train.config import LoopConfig
 from mjx_push.train.loop import Runner, make_train

@@ -15,6 +15,9 @@ import jax
 import jax.numpy as jnp
 
 from mjx_push.train.adapter import EnvAdapter, SubstepScheduler, select_envs
+from mjx_push.train.config import AgentConfig, DemoConfig, LoopConfig, ReplayConfig, SACConfig, TrainConfig
+
+TAU = 0.025  # the toy's success radius in the learning tests and checks (the real task's is 0.01)
 
 
 @flax.struct.dataclass
@@ -96,4 +99,50 @@ def make_toy(
         scheduler=scheduler,
         priv_dim=2,
         expert=expert,
+    )
+
+
+def toy_config(kind, total_env_steps, seed=0, hidden=(128, 256, 64), batch_size=128, **loop):
+    """Plain SAC + HER on the toy task; its episodes last the toy's episode_len (10 unless made
+    otherwise). At 1,600 (VPM) or 1,920 (uGRU) env steps it learns the task
+    (`benchmarks/learning_checks.py`)."""
+    loop = {
+        "num_envs": 8,
+        "total_env_steps": total_env_steps,
+        "warmup_env_steps": 480,
+        "utd": 1.0,
+        "eval_every_env_steps": 800,
+        "eval_episodes": 100,
+        "seed": seed,
+        **loop,
+    }
+    return TrainConfig(
+        agent=AgentConfig(kind, hidden=hidden),
+        sac=SACConfig(batch_size=batch_size),
+        replay=ReplayConfig(capacity_transitions=20_000),
+        loop=LoopConfig(**loop),
+    )
+
+
+def all_features_config(loop_over=None, **over):
+    """Every learner feature at once on the toy task (normalisation, privileged critic with layer
+    norm, target clipping, cloning from demonstrations, the radius curriculum); at 1,280 env steps it
+    learns the task (`benchmarks/learning_checks.py`)."""
+    loop = dict(
+        num_envs=8,
+        total_env_steps=1280,
+        warmup_env_steps=160,
+        utd=1.0,
+        eval_every_env_steps=640,
+        eval_episodes=100,
+        seed=0,
+    )
+    loop.update(loop_over or {})
+    return TrainConfig(
+        agent=AgentConfig("vpm", obs_norm=True, critic_obs="privileged", critic_layer_norm=True),
+        sac=SACConfig(batch_size=128, init_alpha=0.05, target_clip=True, bc_weight=1.0, bc_batch_size=64),
+        replay=ReplayConfig(capacity_transitions=20_000, curriculum_tau=0.05, curriculum_env_steps=400),
+        loop=LoopConfig(**loop),
+        demo=DemoConfig(warmup=True, fraction=0.25, noise=0.1),
+        **over,
     )
