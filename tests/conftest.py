@@ -11,39 +11,15 @@ mjx_push.xla.use_cpu_devices()  # as the command line does: one CPU device per c
 import jax  # noqa: E402
 import pytest  # noqa: E402
 
-from tests.helpers import Sim  # noqa: E402
+from tests.helpers import Sim, use_test_compilation  # noqa: E402
 
-# Persistent compilation cache: repeated local runs skip most compilation; a fresh CI run fills it.
-# MJX_PUSH_TEST_CACHE points it elsewhere (e.g. an empty folder to time a cold run, as CI sees it).
-jax.config.update(
-    "jax_compilation_cache_dir",
-    os.environ.get("MJX_PUSH_TEST_CACHE", os.path.expanduser("~/.cache/mjx_push/jax_tests")),
-)
-jax.config.update("jax_persistent_cache_min_compile_time_secs", 2.0)
-# Compilation, not execution, is most of the suite's time on CPU, and XLA's optimisation passes most of
-# compilation (an MJX step compiles in about half the time without them and runs at half the speed,
-# which the tests' few substeps do not notice). The programs compute the same. MJX_PUSH_TEST_OPTIMIZE=1
-# keeps them.
-if os.environ.get("MJX_PUSH_TEST_OPTIMIZE") != "1":
-    jax.config.update("jax_disable_most_optimizations", True)
-
-
-@pytest.fixture
-def xla_optimized():
-    """This test's programs compiled with XLA's optimisations: for the few tests whose time is execution,
-    not compilation (the pushing-scene learning test: 120 s of CPU instead of 168 s, measured beside
-    other runs). Restores the suite's setting after."""
-    before = jax.config._read("jax_disable_most_optimizations")
-    jax.config.update("jax_disable_most_optimizations", False)
-    yield
-    jax.config.update("jax_disable_most_optimizations", before)
+use_test_compilation()  # the cache, every program in it, most optimisations off (tests/helpers.py)
 
 
 # Longest files first. Two workers take whole files (--dist loadfile) in collection order, so a long
-# file collected last runs alone at the end: test_train_mjx.py, alphabetically last, kept one core
-# idle for its last ~4 minutes (cold run on 2 cores: 10.4 min, with these first: docs/performance.md).
-_LONGEST_FIRST = ("test_train_mjx.py", "test_eval.py", "test_batch.py", "test_learner_loop.py", "test_expert.py")
-
+# file collected last runs alone at the end (a long file alphabetically last once kept one core idle
+# for the last ~4 minutes of a cold run).
+_LONGEST_FIRST = ("test_batch.py", "test_eval.py", "test_run.py", "test_stress.py", "test_train_mjx.py")
 
 @pytest.hookimpl(tryfirst=True)
 def pytest_cmdline_main(config):

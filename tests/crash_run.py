@@ -12,21 +12,13 @@ import sys
 
 import mjx_push.train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
 
-import jax
 from orbax.checkpoint._src.path import atomicity
 
-from tests.helpers import TOY_TAU, toy_run_config
+from tests.helpers import TOY_TAU, toy_run_config, use_test_compilation
 from mjx_push.train.runs import run as run_mod
 from tests.toy import make_toy
 
-# The test process's compilation cache (tests/conftest.py): the toy trainer is compiled there already.
-jax.config.update(
-    "jax_compilation_cache_dir",
-    os.environ.get("MJX_PUSH_TEST_CACHE", os.path.expanduser("~/.cache/mjx_push/jax_tests")),
-)
-jax.config.update("jax_persistent_cache_min_compile_time_secs", 2.0)
-if os.environ.get("MJX_PUSH_TEST_OPTIMIZE") != "1":  # as tests/conftest.py, so the compiled code is shared
-    jax.config.update("jax_disable_most_optimizations", True)
+use_test_compilation()  # the test process's: the toy trainer is compiled there already
 
 KILL_AT_STEP = "120"  # the third checkpoint (env steps)
 _finalize = atomicity.AtomicRenameTemporaryPath.finalize

@@ -10,7 +10,6 @@ CONFIG_JSON is a run configuration (`mjx_push.train.runs.run.config_dict`); `--t
 
 import argparse
 import json
-import os
 import sys
 from pathlib import Path
 
@@ -24,6 +23,7 @@ import numpy as np  # noqa: E402
 from mjx_push.train import data_parallel  # noqa: E402
 from mjx_push.train.runs import run as run_mod  # noqa: E402
 from mjx_push.train import presets  # noqa: E402
+from tests.helpers import use_test_compilation  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -37,12 +37,7 @@ def main(argv=None) -> int:
     p.add_argument("--stop-after", type=int, default=None)
     p.add_argument("--resume", action="store_true")
     a = p.parse_args(argv)
-    jax.config.update(
-        "jax_compilation_cache_dir",
-        os.environ.get("MJX_PUSH_TEST_CACHE", os.path.expanduser("~/.cache/mjx_push/jax_tests")),
-    )
-    if os.environ.get("MJX_PUSH_TEST_OPTIMIZE") != "1" and a.toy:  # as tests/conftest.py
-        jax.config.update("jax_disable_most_optimizations", True)
+    use_test_compilation(disable_optimizations=a.toy)  # as the test process, so compiled code is shared
     data_parallel.initialize(f"localhost:{a.port}", a.num_processes, a.process_id)
     cfg = presets.config_from_dict(json.loads(a.config.read_text()))
     adapter = None
