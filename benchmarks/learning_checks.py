@@ -10,6 +10,8 @@ Checks (each alone on 2 CPU cores takes about a minute, compilation included):
   steps, from under 20 % untrained, its final distances under the success radius.
 - toy-all-features: every learner feature at once (normalisation, privileged critic, cloning, the
   radius curriculum) reaches >= 90 % in-run success on the toy task at 1,280 env steps.
+- expert-1cm: the scripted expert, the teacher of every preset, pushes each of 8 standard episodes
+  (both shapes) to within 1 cm, every object ending under half its starting distance.
 - scene-imitation: on the MJX pushing scene (one cylinder, 10-step episodes), cloning the expert's
   labels brings a latent-observing VPM actor within 0.6 of the best state-blind actor's squared error
   on held-out expert episodes, its move direction's cosine with the expert's above 0.7.
@@ -182,10 +184,33 @@ def scene_imitation() -> dict:
     }
 
 
+def expert_1cm() -> dict:
+    import numpy as np
+
+    from mjx_push.train import presets
+    from mjx_push.train.episodes import EvalSpec
+    from mjx_push.train.evaluate import ExpertPolicy, evaluate
+
+    _optimised(False)  # as the suite compiled it: its time is compilation
+    res = evaluate(
+        ExpertPolicy(presets.make("vpm", "cpu")), EvalSpec(setting="standard", shape="all", episodes=8, batch=4)
+    )
+    per = res["per_episode"]
+    final, start = per["final_distance"], per["start_distance"]
+    checks = {
+        "no invalid episode": res["invalid_episodes"] == 0,
+        "every episode within 1 cm": bool(np.all(final < 0.01)),
+        "every object travelled (ends under half its start distance)": bool(np.all(final < 0.5 * start)),
+    }
+    figure = f"{int(np.sum(final < 0.01))} / {len(final)} within 1 cm, worst {100 * float(final.max()):.2f} cm"
+    return {"figure": figure, "checks": checks, "final_distance_m": [round(float(x), 5) for x in final]}
+
+
 CHECKS = {
     "toy-vpm": lambda: toy("vpm"),
     "toy-ugru": lambda: toy("ugru"),
     "toy-all-features": toy_all_features,
+    "expert-1cm": expert_1cm,
     "scene-imitation": scene_imitation,
 }
 

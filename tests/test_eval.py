@@ -519,16 +519,9 @@ def test_reproduce_plan_lists_one_command_per_job_then_the_report(tmp_path, caps
     from mjx_push.train.comparison import reproduce as rep
     from mjx_push.train.comparison.study import Study
 
+    # The lines themselves: tests/test_comparison_study.py. Here: the command writes exactly them.
     lines = rep.plan(Study("cpu-long", tmp_path, seeds=2, agents=("vpm", "egru")))
-    base = f"mjx-push reproduce --budget cpu-long --out {tmp_path}"
-    assert lines == [
-        f"{base} --job vpm:0",
-        f"{base} --job egru:0",
-        f"{base} --job vpm:1",
-        f"{base} --job egru:1",
-        f"{base} --job expert",
-        f"{base} --seeds 2 --agents vpm egru --report-only",
-    ]
+    assert len(lines) == 2 * 2 + 2 and lines[-1].endswith("--report-only")
     plan_file = tmp_path / "plan.txt"
     assert (
         cli_main(
