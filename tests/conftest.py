@@ -21,6 +21,7 @@ use_test_compilation()  # the cache, every program in it, most optimisations off
 # for the last ~4 minutes of a cold run).
 _LONGEST_FIRST = ("test_batch.py", "test_eval.py", "test_run.py", "test_stress.py", "test_train_mjx.py")
 
+
 @pytest.hookimpl(tryfirst=True)
 def pytest_cmdline_main(config):
     """Two worker processes, whole files each (a file's fixtures are compiled once; CI has two cores),
