@@ -53,6 +53,9 @@ def test_resting_object_stays_put(shape, box_sim, cyl_sim):
 def test_sampled_mass_and_friction_reach_the_simulation(box_sim):
     params = rest_params("box")
     state = box_sim.start(params)
+    # The simulation's own forward pass (a reset runs none): one short step holding still.
+    ee = state.info["ee_xy_true"]
+    state = box_sim.step(state, action_for(ee, ee, a_s_for(10)))
     env, ids = box_sim.env, box_sim.env.ids
     for i, p in enumerate(params):
         m = env.model(jax.tree.map(lambda x: x, p))
@@ -187,3 +190,40 @@ def test_wrong_action_shape_raises(box_sim):
     state = box_sim.start([make_params("box")] * B)
     with pytest.raises(ValueError, match=r"action must have shape \(3,\)"):
         jax.vmap(box_sim.env.step)(state, jnp.zeros((B, 2)))
+
+
+def test_reset_computes_what_the_first_step_reads(box_sim):
+    """Reset runs no forward pass (the arm's kinematics at home are computed once on the host): what the
+    controller reads before the first step (the flange's pose and Jacobian) matches a full forward
+    pass of each episode's own model, and physics stepped from the reset's data matches physics
+    stepped from the full pass exactly, contacts included (the rod pushes the objects)."""
+    from mujoco import mjx
+
+    params = [
+        make_params("box", sides=(0.05, 0.05), height=0.046, mass=m, start=(0.05, 0.0, 0.3))
+        for m in (0.01, 0.1, 0.3, 0.5)
+    ]
+    state = box_sim.start(params)
+    env, ids = box_sim.env, box_sim.env.ids
+    models = jax.vmap(env.model)(state.info["params"])
+    kin = state.pipeline_state
+    full = jax.jit(jax.vmap(mjx.forward))(models, kin)
+
+    def flange(m, d):
+        p = d.site_xpos[ids.flange_site]
+        return p, d.site_xmat[ids.flange_site], mjx.jac(m, d, p, ids.link7_body)[0]
+
+    # Two compiled programs: equal to rounding (the steps below share one, and must agree exactly).
+    for x, y in zip(jax.vmap(flange)(models, kin), jax.vmap(flange)(models, full)):
+        np.testing.assert_allclose(np.asarray(x), np.asarray(y), atol=1e-6)
+    # Joint velocities that drive the rod into the object: contacts appear in the first substeps.
+    ctrl = jnp.tile(jnp.asarray([0.0, 0.6, 0.0, 0.6, 0.0, -0.3, 0.0]), (B, 1))
+    step = jax.jit(jax.vmap(lambda m, d: mjx.step(m, d.replace(ctrl=ctrl[0]))))
+    a, b = kin, full
+    for _ in range(200):
+        a, b = step(models, a), step(models, b)
+    o = ids.object_qpos
+    moved = np.linalg.norm(np.asarray(a.qpos[:, o : o + 2] - kin.qpos[:, o : o + 2]), axis=1)
+    assert np.all(moved > 1e-3), moved  # the rod pushed every object
+    for name in ("qpos", "qvel", "qacc"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
