@@ -305,6 +305,49 @@ def test_runs_table_shows_every_run_with_its_status(tmp_path):
     assert "20 runs (4 agents x 5 training seeds): 17 finished, 1 failed, 1 training, 1 missing." in table
 
 
+def _rerun(folder: Path, name: str, agent: str, seed: int, success: list[float]) -> None:
+    values = {m: np.array(success) if m == "success" else np.array([-5.0, -6.0, -7.0]) for m in ct.METRICS}
+    values["overshoot"], values["distance"] = np.ones(3), np.ones(3)
+    run = {"agent": agent, "seed": seed, "status": "finished", "env_steps": 128000, "commit": "abcdef0123456"}
+    (folder / "reruns").mkdir(exist_ok=True)
+    (folder / "reruns" / name).write_text(json.dumps({**run, "note": "machine 2", "shapes": _shapes(values)}))
+
+
+def test_a_rerun_shows_under_its_run_and_stays_out_of_the_statistics(tmp_path):
+    tables = _tables()
+    folder = make_folder(tmp_path, tables)
+    before = ct.render_blocks(ct.load(folder))
+    assert before["reruns"].startswith("No rerun")
+    _rerun(folder, "vpm-s0-machine2.json", "vpm", 0, [0.5, 0.6, 0.7])
+    results = ct.load(folder)
+    after = ct.render_blocks(results)
+    for name in ct.BLOCK_NAMES[:-1]:  # every other table is the protocol's runs alone
+        assert after[name] == before[name], name
+    table = after["reruns"]
+    lines = [line for line in table.splitlines() if line.startswith("| VPM")]
+    original = [f"{v * 100:.1f}" for v in tables["success"]["vpm"][0]]
+    assert lines[0].split(" | ")[2] == "protocol's run" and lines[0].split(" | ")[5:8] == original
+    assert lines[1].split(" | ")[2] == "rerun machine2" and lines[1].split(" | ")[5:8] == ["50.0", "60.0", "70.0"]
+    gaps = np.abs(np.array([0.5, 0.6, 0.7]) - tables["success"]["vpm"][0]) * 100
+    assert f"mean {np.mean(gaps):.1f}, largest {np.max(gaps):.1f} points over 3 run x shape pairs" in table
+
+
+@pytest.mark.parametrize(
+    "name, agent, seed, message",
+    [
+        ("vpm-s0.json", "vpm", 0, "<agent>-s<seed>-<label>.json"),
+        ("vpm-s9-machine2.json", "vpm", 9, "seed 9 is not in"),
+        ("vpm-s1-machine2.json", "vpm", 0, "disagrees with the file's name"),
+    ],
+)
+def test_bad_rerun_files_are_refused_naming_the_file(tmp_path, name, agent, seed, message):
+    folder = make_folder(tmp_path)
+    _rerun(folder, name, agent, seed, [0.5, 0.6, 0.7])
+    with pytest.raises(DataError, match=re.escape(message)) as e:
+        ct.load(folder)
+    assert name in str(e.value)
+
+
 def test_success_table_mean_is_the_mean_of_the_seeds_with_an_interval_around_it(tmp_path):
     tables = _tables()
     results = ct.load(make_folder(tmp_path, tables, {("vpm", 1): "failed"}))
