@@ -330,46 +330,39 @@ def _load_run(path: Path, agent: str, seed: int, protocol: Protocol) -> Run:
     return Run(agent, seed, status, env_steps, _take(data, "commit", path, "str"), note, scores)
 
 
-def _run_files(folder: Path, protocol: Protocol) -> dict[tuple[str, int], Path]:
-    runs_dir = folder / "runs"
-    if not runs_dir.exists():
-        return {}
-    if not runs_dir.is_dir():
-        raise DataError(f"{runs_dir}: not a directory")
-    files = {}
-    for path in sorted(runs_dir.glob("*.json")):
-        match = _RUN_FILE.fullmatch(path.name)
+def _named_files(folder: Path, sub: str, pattern: re.Pattern, form: str, protocol: Protocol):
+    """(path, match) for each JSON file of folder/sub, in name order: each named by `pattern` (else a
+    DataError quoting `form`) for an agent and seed of the protocol."""
+    where = folder / sub
+    if not where.exists():
+        return []
+    if not where.is_dir():
+        raise DataError(f"{where}: not a directory")
+    out = []
+    for path in sorted(where.glob("*.json")):
+        match = pattern.fullmatch(path.name)
         if match is None:
-            raise DataError(f"{path}: a run file is named <agent>-s<seed>.json (seed without leading zeros)")
+            raise DataError(f"{path}: a file of {sub}/ is named {form}")
         agent, seed = match["agent"], int(match["seed"])
         if agent not in protocol.agents or seed not in protocol.seeds:
             raise DataError(
                 f"{path}: agent {agent!r} seed {seed} is not in {folder / 'protocol.json'} "
                 f"(agents {list(protocol.agents)}, seeds {list(protocol.seeds)})"
             )
-        files[(agent, seed)] = path
-    return files
+        out.append((path, match))
+    return out
+
+
+def _run_files(folder: Path, protocol: Protocol) -> dict[tuple[str, int], Path]:
+    form = "<agent>-s<seed>.json (seed without leading zeros)"
+    files = _named_files(folder, "runs", _RUN_FILE, form, protocol)
+    return {(m["agent"], int(m["seed"])): path for path, m in files}
 
 
 def _load_reruns(folder: Path, protocol: Protocol) -> tuple[tuple[str, Run], ...]:
-    reruns_dir = folder / "reruns"
-    if not reruns_dir.exists():
-        return ()
-    if not reruns_dir.is_dir():
-        raise DataError(f"{reruns_dir}: not a directory")
-    out = []
-    for path in sorted(reruns_dir.glob("*.json")):
-        match = _RERUN_FILE.fullmatch(path.name)
-        if match is None:
-            raise DataError(f"{path}: a rerun file is named <agent>-s<seed>-<label>.json (label: a-z, 0-9 and -)")
-        agent, seed = match["agent"], int(match["seed"])
-        if agent not in protocol.agents or seed not in protocol.seeds:
-            raise DataError(
-                f"{path}: agent {agent!r} seed {seed} is not in {folder / 'protocol.json'} "
-                f"(agents {list(protocol.agents)}, seeds {list(protocol.seeds)})"
-            )
-        out.append((match["label"], _load_run(path, agent, seed, protocol)))
-    return tuple(out)
+    form = "<agent>-s<seed>-<label>.json (label: a-z, 0-9 and -)"
+    files = _named_files(folder, "reruns", _RERUN_FILE, form, protocol)
+    return tuple((m["label"], _load_run(path, m["agent"], int(m["seed"]), protocol)) for path, m in files)
 
 
 def load(folder: str | Path) -> Results:
