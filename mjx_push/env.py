@@ -74,7 +74,7 @@ def data_at_home(mj_model: mujoco.MjModel, data: mjx.Data) -> mjx.Data:
     d.qpos[: len(scene.HOME_QPOS)] = scene.HOME_QPOS
     mujoco.mj_kinematics(mj_model, d)
     mujoco.mj_comPos(mj_model, d)
-    like = lambda name, x: jnp.asarray(x, data.qpos.dtype).reshape(name.shape)  # noqa: E731
+    like = lambda target, x: jnp.asarray(x, data.qpos.dtype).reshape(target.shape)  # noqa: E731
     data = data.replace(**{f: like(getattr(data, f), getattr(d, f)) for f in _KINEMATIC_FIELDS})
     return data.tree_replace({"_impl.cinert": like(data._impl.cinert, d.cinert)})
 
@@ -102,7 +102,7 @@ class PushEnv(Env):
         self.ids = scene.scene_ids(self.mj_model)
         self.sys = mjx.put_model(self.mj_model)
         self._home_data = data_at_home(self.mj_model, mjx.make_data(self.sys))
-        self.home_flange = jnp.asarray(scene.home_flange_pos(), jnp.result_type(float))
+        self.home_flange = self._home_data.site_xpos[self.ids.flange_site]  # scene.home_flange_pos()
         # The perturbations this environment runs (docs/robustness.md): a static set, so an environment
         # without any runs exactly the code it always ran.
         self.perturbed = config.perturb.active()

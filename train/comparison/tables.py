@@ -469,6 +469,10 @@ def _stats(table: np.ndarray, boot: Bootstrap) -> tuple[np.ndarray, np.ndarray, 
 # Tables
 
 
+def _success_cells(run: Run, shapes: Sequence[str]) -> list[str]:
+    return [_value("success", run.scores[shape]["success"]) if run.scores else DASH for shape in shapes]
+
+
 def runs_table(results: Results) -> str:
     """Every run the protocol lists, finished or not: a failed, unfinished or missing seed stays visible."""
     protocol = results.protocol
@@ -476,7 +480,7 @@ def runs_table(results: Results) -> str:
     header += [f"success {shape} (%)" for shape in protocol.shapes] + ["note"]
     rows = []
     for run in results.runs:
-        success = [_value("success", run.scores[shape]["success"]) if run.scores else DASH for shape in protocol.shapes]
+        success = _success_cells(run, protocol.shapes)
         steps = DASH if run.env_steps is None else str(run.env_steps)
         rows.append([_label(run.agent), str(run.seed), run.status, steps, run.commit[:7] or DASH, *success, run.note])
     counts = ", ".join(f"{sum(r.status == s for r in results.runs)} {s}" for s in (*STATUSES, MISSING))
@@ -873,7 +877,7 @@ def reruns_table(results: Results) -> str:
     rows, gaps = [], []
 
     def row(run: Run, name: str) -> list[str]:
-        success = [_value("success", run.scores[shape]["success"]) if run.scores else DASH for shape in protocol.shapes]
+        success = _success_cells(run, protocol.shapes)
         return [_label(run.agent), str(run.seed), name, run.status, run.commit[:7] or DASH, *success, run.note]
 
     for agent in protocol.agents:
