@@ -293,16 +293,33 @@ def test_runs_table_shows_every_run_with_its_status(tmp_path):
     rows = [line for line in table.splitlines() if line.startswith("| ") and not line.startswith("| agent")]
     assert len(rows) == len(AGENTS) * len(SEEDS)
     assert re.search(
-        r"^\| VPM \| 1 \| failed \| 64000 \| abcdef1 \| — \| — \| — \| NaN critic loss \\\| at 64k steps \|$",
+        r"^\| VPM \| 1 \| failed \| 64000 \| abcdef1 \| — \| — \| — \| — \| NaN critic loss \\\| at 64k steps \|$",
         table,
         re.M,
     )
-    assert re.search(r"^\| uGRU \| 4 \| training \| 64000 \| abcdef4 \| — \| — \| — \|  \|$", table, re.M)
-    assert re.search(r"^\| Stacked \| 3 \| missing \| — \| — \| — \| — \| — \|  \|$", table, re.M)
+    assert re.search(r"^\| uGRU \| 4 \| training \| 64000 \| abcdef4 \| — \| — \| — \| — \|  \|$", table, re.M)
+    assert re.search(r"^\| Stacked \| 3 \| missing \| — \| — \| — \| — \| — \| — \|  \|$", table, re.M)
     finished = _row(table, "eGRU")
-    assert finished[:5] == ["eGRU", "0", "finished", "128000", "abcdef0"]
-    assert finished[5:8] == [f"{v * 100:.1f}" for v in tables["success"]["egru"][0]]
+    assert finished[:6] == ["eGRU", "0", "finished", "128000", "abcdef0", "—"]  # no train_wall_s recorded
+    assert finished[6:9] == [f"{v * 100:.1f}" for v in tables["success"]["egru"][0]]
     assert "20 runs (4 agents x 5 training seeds): 17 finished, 1 failed, 1 training, 1 missing." in table
+    assert "17 finished runs hold 0.0 h in all" not in table and "0 finished runs hold 0.0 h in all" in table
+
+
+def test_runs_table_shows_each_runs_training_time_and_their_sum(tmp_path):
+    folder = make_folder(tmp_path, statuses={("vpm", 1): "failed"})
+    _edit(folder / "runs/egru-s0.json", lambda d: d.update(train_wall_s=5400.0))
+    _edit(folder / "runs/vpm-s0.json", lambda d: d.update(train_wall_s=1830))
+    _edit(folder / "runs/vpm-s1.json", lambda d: d.update(train_wall_s=999.0))  # failed: not in the sum
+    table = ct.runs_table(ct.load(folder))
+    assert _row(table, "eGRU")[5] == "90" and _row(table, "VPM")[5] == "30"
+    assert "2 finished runs hold 2.0 h in all" in table
+    _edit(folder / "runs/vpm-s0.json", lambda d: d.update(train_wall_s="30 min"))
+    with pytest.raises(DataError, match="runs/vpm-s0.json: field 'train_wall_s'.*'30 min'"):
+        ct.load(folder)
+    _edit(folder / "runs/vpm-s0.json", lambda d: d.update(train_wall_s=-1.0))
+    with pytest.raises(DataError, match="field 'train_wall_s'"):
+        ct.load(folder)
 
 
 def _rerun(folder: Path, name: str, agent: str, seed: int, success: list[float]) -> None:

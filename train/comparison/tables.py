@@ -130,6 +130,7 @@ class Run:
     commit: str
     note: str
     scores: Scores  # empty unless finished
+    train_wall_s: float | None = None  # the record's training time: a resumed run's last segment only
 
 
 @dataclasses.dataclass(frozen=True)
@@ -327,7 +328,11 @@ def _load_run(path: Path, agent: str, seed: int, protocol: Protocol) -> Run:
         )
     note = _take(data, "note", path, "str") if "note" in data else ""
     scores = _load_scores(data, path, protocol) if status == "finished" else MappingProxyType({})
-    return Run(agent, seed, status, env_steps, _take(data, "commit", path, "str"), note, scores)
+    wall = data.get("train_wall_s")
+    if wall is not None and (isinstance(wall, bool) or not isinstance(wall, (int, float)) or not wall >= 0):
+        raise DataError(f"{path}: field 'train_wall_s': expected seconds >= 0 or null, got {wall!r}")
+    commit = _take(data, "commit", path, "str")
+    return Run(agent, seed, status, env_steps, commit, note, scores, None if wall is None else float(wall))
 
 
 def _named_files(folder: Path, sub: str, pattern: re.Pattern, form: str, protocol: Protocol):
@@ -476,19 +481,25 @@ def _success_cells(run: Run, shapes: Sequence[str]) -> list[str]:
 def runs_table(results: Results) -> str:
     """Every run the protocol lists, finished or not: a failed, unfinished or missing seed stays visible."""
     protocol = results.protocol
-    header = ["agent", "seed", "status", "env steps", "commit"]
+    header = ["agent", "seed", "status", "env steps", "commit", "train wall (min)"]
     header += [f"success {shape} (%)" for shape in protocol.shapes] + ["note"]
     rows = []
     for run in results.runs:
         success = _success_cells(run, protocol.shapes)
         steps = DASH if run.env_steps is None else str(run.env_steps)
-        rows.append([_label(run.agent), str(run.seed), run.status, steps, run.commit[:7] or DASH, *success, run.note])
+        wall = DASH if run.train_wall_s is None else f"{run.train_wall_s / 60:.0f}"
+        rows.append(
+            [_label(run.agent), str(run.seed), run.status, steps, run.commit[:7] or DASH, wall, *success, run.note]
+        )
     counts = ", ".join(f"{sum(r.status == s for r in results.runs)} {s}" for s in (*STATUSES, MISSING))
+    timed = [r.train_wall_s for r in results.runs if r.status == "finished" and r.train_wall_s is not None]
     caption = (
         f"{len(results.runs)} runs ({len(protocol.agents)} agents x {len(protocol.seeds)} training seeds): "
-        f"{counts}. {_episodes_caption(protocol)}."
+        f"{counts}. {_episodes_caption(protocol)}. Train wall: the training time a run's record holds, "
+        "evaluations during training included; a resumed run's record holds its last segment only (its "
+        f"note says so); {len(timed)} finished runs hold {sum(timed) / 3600:.1f} h in all."
     )
-    right = [False, True, False, True, False] + [True] * len(protocol.shapes) + [False]
+    right = [False, True, False, True, False, True] + [True] * len(protocol.shapes) + [False]
     return _markdown(header, rows, right) + "\n\n" + caption
 
 
