@@ -3,7 +3,8 @@
 Why shape groups: MJX fixes each geom's type at trace time, and its collision driver runs every
 candidate geom pair for every environment. Giving the object both a box and a cylinder geom (and
 parking the unused one) would make every environment pay for both shapes' collisions and contact
-rows. Instead the batch is split into groups, one `PushEnv` (one compiled model) per geom type, each
+rows: it compiles one substep program instead of two but runs every substep slower, which a run of more
+than a few batches loses (`benchmarks/shape_programs.py`). Instead the batch is split into groups, one `PushEnv` (one compiled model) per geom type, each
 vmapped over its own slice: every environment only runs the collisions of its own shape. With shape
 filter "any" the first ceil(N/2) environments hold cuboids and the rest cylinders, so each shape has
 probability 1/2 per environment slot as in the paper; "cylinder" / "cuboid" / "square" / "rectangular"
