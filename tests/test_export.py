@@ -616,19 +616,26 @@ def test_pretrained_names_resolve_for_eval_and_deploy(package_exported, tmp_path
 
 def test_the_shipped_policies_load_act_and_name_their_origin():
     """Every policy in export/pretrained_policies/ is a package-encoder file of its agent kind that
-    loads with NumPy and acts, and names the run, budget, seed and commit that trained it."""
+    loads with NumPy and acts, and is protocol v1's seed-0 run of its agent (or that run trained again
+    from the same commit and seed), whose record is committed beside the comparison's data."""
     from mjx_push.export import pretrained
 
     ships = pretrained.available()
-    assert ships and set(ships) <= set(AGENT_KINDS), ships
+    assert set(ships) == set(AGENT_KINDS), ships
     masks, goal = _moving_object("box", 5, steps=3)
+    data = Path(__file__).resolve().parents[1] / "docs" / "data" / "comparison-v1"
     for name, path in ships.items():
         f = pfile.load_npz(path)
         assert f.kind == name
         assert f.metadata["encoder"]["weights"] == {"source": "package", "sha256": pfile.package_encoder_sha256()}
-        prov = f.metadata["provenance"]
-        assert prov["budget"] == "cpu-long" and prov["seed"].isdigit() and len(prov["trained_commit"]) >= 7
-        assert prov["run"].endswith(f"{name}-s{prov['seed']}")
+        prov, run_config = f.metadata["provenance"], f.metadata["run_config"]
+        assert prov["protocol"] == "v1" and prov["actor"] == "final_policy" and len(prov["trained_commit"]) >= 7
+        assert "+dirty" not in prov["commit"]  # exported from a clean commit
+        assert run_config["preset"] == "teacher-free" and run_config["train"]["loop"]["seed"] == 0
+        assert prov["run"] in (f"{name}-s0", f"{name}-s0-machine2")
+        record = data / ("reruns" if "rerun_of" in prov else "runs") / f"{prov['run']}.json"
+        assert "rerun_of" not in prov or prov["rerun_of"] == f"{name}-s0"
+        assert json.loads(record.read_text())["commit"].startswith(prov["trained_commit"])
         assert path.stat().st_size < 1_000_000
         policy = NumpyPolicy.from_file(path)
         for m in masks:
