@@ -235,6 +235,10 @@ BAD_DATA = {
         lambda f: _edit(f / "protocol.json", lambda d: d.update(actor="best")),
         ["protocol.json", "'actor'", "final_policy"],
     ),
+    "set not PATH=VALUE items": (
+        lambda f: _edit(f / "protocol.json", lambda d: d.update(set=["env.perturb.latency"])),
+        ["protocol.json", "'set'", "PATH=VALUE"],
+    ),
     "preset missing": (
         lambda f: _edit(f / "protocol.json", lambda d: d.pop("preset")),
         ["protocol.json", "'preset' missing"],

@@ -130,6 +130,24 @@ def test_plan_lists_every_run_seed_major_then_the_expert_and_the_tables(tmp_path
     ]
 
 
+def test_a_protocols_set_items_reach_every_run_and_a_bad_one_is_refused_before_any_work(tmp_path, capsys, stand_ins):
+    folder = _folder(tmp_path, set=["env.perturb.latency=30", "env.perturb.sample=uniform"])
+    runs = proto.ProtocolRuns(folder, tmp_path / "out", log=lambda _: None)
+    cfg = runs.config("egru", 1)
+    assert (cfg.env.perturb.latency, cfg.env.perturb.sample) == (30, "uniform")
+    assert cfg.train.loop.seed == 1 and ct.load_protocol(folder).sets == tuple(
+        json.loads((folder / "protocol.json").read_text())["set"]
+    )
+    assert ct.load_protocol(_folder(tmp_path / "plain")).sets == ()  # protocol v1 has none: the preset alone
+    caption = ct._episodes_caption(ct.load_protocol(folder))
+    assert caption.endswith("800 env steps; trained with --set env.perturb.latency=30 env.perturb.sample=uniform)")
+    bad = _folder(tmp_path / "bad", set=["env.perturb.latencyy=30"])
+    assert cli_main(["protocol", str(bad), "--out", str(tmp_path / "out2")]) == 2
+    err = capsys.readouterr().err
+    assert "protocol.json: field 'set'" in err and "env.perturb.latencyy" in err
+    assert not (bad / "runs").exists() and stand_ins["train"] == []
+
+
 def test_a_protocol_the_preset_does_not_match_is_refused_before_any_work(tmp_path, capsys, stand_ins):
     folder = _folder(tmp_path, env_steps=1600)
     assert cli_main(["protocol", str(folder), "--out", str(tmp_path / "out")]) == 2

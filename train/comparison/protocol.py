@@ -53,11 +53,17 @@ class ProtocolRuns:
         return load_protocol(Path(self.folder))
 
     def config(self, agent: str, seed: int) -> presets.RunConfig:
-        """The run's configuration: the protocol's preset for this agent and seed, nothing changed."""
+        """The run's configuration: the protocol's preset for this agent and seed with the protocol's own
+        `set` items, nothing else changed."""
         p = self.protocol
         if agent not in p.agents or seed not in p.seeds:
             raise ConfigError(f"{agent}:{seed} is not a run of protocol {p.version} ({p.agents}, seeds {p.seeds})")
         cfg = presets.make(agent, p.preset, seed)
+        if p.sets:
+            try:
+                cfg = presets.with_overrides(cfg, presets.parse_overrides(p.sets))
+            except ConfigError as e:
+                raise ConfigError(f"{Path(self.folder) / 'protocol.json'}: field 'set': {e}") from e
         cfg = self.config_hook(cfg) if self.config_hook else cfg
         if cfg.train.loop.total_env_steps != p.env_steps:
             raise ConfigError(
@@ -176,6 +182,8 @@ def _job(kind: str, runs: ProtocolRuns, *args):
 
 def run_all(runs: ProtocolRuns, jobs: int = 1) -> None:
     """Every run not yet finished, `jobs` at a time, then the expert's row."""
+    for agent, seed in jobs_of(runs.protocol):
+        runs.config(agent, seed)  # a bad `set` item is refused before any run starts
     calls = [(("run", runs, agent, seed), {}) for agent, seed in jobs_of(runs.protocol)]
     calls.append((("expert", runs), {}))
     t0 = time.perf_counter()

@@ -115,6 +115,9 @@ class Protocol:
     env_steps: int
     bootstrap: Bootstrap
     preset: str  # the `mjx-push train --preset` every run trains with
+    # `--set PATH=VALUE` items every run trains with on top of the preset, fixed with the protocol
+    # (a variant of a preset, e.g. training-time randomisation); none in protocol v1.
+    sets: tuple[str, ...] = ()
 
 
 Scores = Mapping[str, Mapping[str, float]]
@@ -246,7 +249,11 @@ def load_protocol(folder: Path) -> Protocol:
     actor = _take(data, "actor", path, "str")
     if actor not in ACTORS:
         raise DataError(f"{path}: field 'actor': expected one of {ACTORS}, got {actor!r}")
+    sets = _take(data, "set", path, "list") if "set" in data else []
+    if not all(isinstance(item, str) and "=" in item.strip("=") for item in sets):
+        raise DataError(f"{path}: field 'set': expected a list of 'PATH=VALUE' strings, got {sets!r}")
     return Protocol(
+        sets=tuple(sets),
         preset=_take(data, "preset", path, "str"),
         version=_take(data, "version", path, "str"),
         agents=_names(data, "agents", path),
@@ -452,7 +459,9 @@ def _percent(confidence: float) -> str:
 def _episodes_caption(protocol: Protocol) -> str:
     return (
         f"Protocol {protocol.version}: {protocol.episodes_per_shape} test episodes per shape (test seed "
-        f"{protocol.test_seed}, {protocol.setting} setting, {protocol.actor}, {protocol.env_steps} env steps)"
+        f"{protocol.test_seed}, {protocol.setting} setting, {protocol.actor}, {protocol.env_steps} env steps"
+        + (f"; trained with --set {' '.join(protocol.sets)}" if protocol.sets else "")
+        + ")"
     )
 
 
