@@ -75,9 +75,21 @@ def test_set_lines_reach_the_environment_and_bad_ones_name_the_field():
     assert presets.config_from_dict(old).env.perturb == PerturbConfig()
 
 
-def test_the_documented_training_line_is_the_realistic_randomisation():
-    doc = (Path(__file__).resolve().parents[1] / "docs" / "robustness.md").read_text()
-    assert perturb.set_line(perturb.training_config("realistic")) in doc
+def test_the_documented_training_line_and_the_studys_randomised_arm_are_the_realistic_randomisation():
+    import json
+
+    repo = Path(__file__).resolve().parents[1]
+    line = perturb.set_line(perturb.training_config("realistic"))
+    assert line in (repo / "docs" / "robust-training.md").read_text()
+    # robust-v1: the randomised arm trains with exactly that line, the plain arm with none, and
+    # nothing else differs between the two protocols but their names.
+    arms = {
+        a: json.loads((repo / "docs/data/robust-v1" / a / "protocol.json").read_text()) for a in ("plain", "randomised")
+    }
+    assert arms["randomised"].pop("set") == line.removeprefix("--set ").split() and "set" not in arms["plain"]
+    assert {k: v for k, v in arms["plain"].items() if k != "version"} == {
+        k: v for k, v in arms["randomised"].items() if k != "version"
+    }
 
 
 def test_suite_levels_grow_and_every_row_is_a_valid_config():
