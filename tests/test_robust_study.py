@@ -1,0 +1,115 @@
+"""benchmarks.robust_study: study robust-v1's decision follows its pre-registered rule, its report names
+every run, and records of the wrong episodes are refused."""
+
+import json
+
+import pytest
+
+from benchmarks import robust_study as rs
+
+TEST_SEED = 7001009
+
+
+def _study(tmp_path):
+    study = tmp_path / "robust-v1"
+    for arm in rs.ARMS:
+        (study / arm).mkdir(parents=True)
+        (study / arm / "protocol.json").write_text(json.dumps({"seeds": [0, 1], "test_seed": TEST_SEED}))
+    return study
+
+
+def _record(clean, rows, seed=rs.SELECTION_SEED, levels=("realistic",)):
+    """A stress record with the fields the study reads: per-row success at the realistic level (mean
+    over shapes), the clean row and the noise floor, and its score."""
+
+    def row(name, level, success):
+        return {"perturbation": name, "level": level, "mean": {"success": success}, "skipped": None, "per_episode": [1]}
+
+    return {
+        "config": {"seed": seed, "levels": list(levels)},
+        "rows": [row("clean", None, clean), row("noise_floor", None, clean - 0.01)]
+        + [row(name, "realistic", s) for name, s in rows.items()],
+        "score": {"clean": clean, "realistic": sum(rows.values()) / len(rows)},
+        "wall_s": 60.0,
+    }
+
+
+def _add(study, tmp_path, arm, seed, record):
+    path = tmp_path / f"{arm}-{seed}-{record['config']['seed']}.json"
+    path.write_text(json.dumps(record))
+    return rs.add(path, arm, seed, study)
+
+
+def test_without_records_every_run_is_named_pending(tmp_path):
+    text = rs.block(_study(tmp_path))
+    assert text.count("not yet stressed") == 4
+    assert "Decision pending: no selection record yet for plain s0, plain s1, randomised s0, randomised s1." in text
+    assert "Not yet stressed on the test episodes: plain s0, plain s1, randomised s0, randomised s1." in text
+
+
+def test_the_rule_ships_a_better_score_at_equal_clean_and_not_a_lower_clean(tmp_path):
+    study = _study(tmp_path)
+    for seed in (0, 1):
+        _add(study, tmp_path, "plain", seed, _record(0.95, {"latency": 0.80, "mass": 0.90}))
+    _add(study, tmp_path, "randomised", 0, _record(0.94, {"latency": 0.90, "mass": 0.92}))
+    assert "Decision pending: no selection record yet for randomised s1." in rs.block(study)
+    _add(study, tmp_path, "randomised", 1, _record(0.94, {"latency": 0.90, "mass": 0.92}))
+    text = rs.block(study)
+    assert "| **plain, mean** | 95.0 | 85.0 |" in text and "| **randomised, mean** | 94.0 | 91.0 |" in text
+    assert "Decision: the randomised eGRU ships as `pretrained:egru-robust` (robustness score 91.0 against 85.0" in text
+    # 3 points of clean success lost: more than the rule allows, whatever the score
+    _add(study, tmp_path, "randomised", 1, _record(0.90, {"latency": 0.90, "mass": 0.92}))
+    text = rs.block(study)
+    assert "the randomised eGRU does not ship" in text and "clean success 92.0 against 95.0: more than 2 points" in text
+    # a score not above the plain arm's does not ship either
+    for seed in (0, 1):
+        _add(study, tmp_path, "randomised", seed, _record(0.95, {"latency": 0.80, "mass": 0.90}))
+    assert "does not ship (robustness score 85.0 against 85.0: not above" in rs.block(study)
+
+
+def test_the_report_shows_every_test_record_and_reads_the_target_on_randomised_seed_0(tmp_path):
+    study = _study(tmp_path)
+    _add(study, tmp_path, "plain", 0, _record(0.96, {"latency": 0.80, "mass": 0.90}, seed=TEST_SEED))
+    _add(study, tmp_path, "randomised", 0, _record(0.95, {"latency": 0.93, "mass": 0.91}, seed=TEST_SEED))
+    text = rs.block(study)
+    assert "| plain-s0 | 96 |" in text and "| randomised-s0 | 95 |" in text
+    assert "Not yet stressed on the test episodes: plain s1, randomised s1." in text
+    assert "Target (randomised s0, test episodes): met: its largest loss from clean is 4.0 points (mass" in text
+    _add(study, tmp_path, "randomised", 0, _record(0.95, {"latency": 0.85, "mass": 0.91}, seed=TEST_SEED))
+    assert "not met: its largest loss from clean is 10.0 points (latency" in rs.block(study)
+
+
+def test_records_of_other_episodes_or_runs_are_refused_naming_the_field(tmp_path):
+    study = _study(tmp_path)
+    with pytest.raises(rs.StudyError, match="field 'config.seed' is 12345: neither the selection seed"):
+        _add(study, tmp_path, "plain", 0, _record(0.9, {"mass": 0.9}, seed=12345))
+    with pytest.raises(rs.StudyError, match="no 'realistic' level"):
+        _add(study, tmp_path, "plain", 0, _record(0.9, {"mass": 0.9}, levels=("mild",)))
+    with pytest.raises(rs.StudyError, match="plain s7 is not a run of study robust-v1"):
+        _add(study, tmp_path, "plain", 7, _record(0.9, {"mass": 0.9}))
+    assert not (study / "stress").exists()
+    kept = _add(study, tmp_path, "plain", 0, _record(0.9, {"mass": 0.9}))
+    assert kept.name == "plain-s0-select.json" and "per_episode" not in kept.read_text()
+    # a record moved under another episodes' name is caught when read
+    kept.rename(kept.with_name("plain-s0-test.json"))
+    with pytest.raises(rs.StudyError, match="its episodes are not the file name's"):
+        rs.load(study)
+
+
+def test_check_passes_after_write_and_fails_on_a_changed_number(tmp_path, monkeypatch):
+    study = _study(tmp_path)
+    page = tmp_path / "page.md"
+    page.write_text(f"intro\n\n{rs.BEGIN}\nold\n{rs.END}\n\nafter\n")
+    monkeypatch.setattr(rs, "STUDY", study)
+    monkeypatch.setattr(rs, "PAGE", page)
+    assert rs.main(["--check"]) == 1
+    assert rs.main(["--write"]) == 0
+    assert rs.main(["--check"]) == 0
+    text = page.read_text()
+    assert text.startswith("intro\n\n") and text.endswith("\n\nafter\n")
+    page.write_text(text.replace("plain s0 | not yet stressed", "plain s0 | 95.0"))
+    assert rs.main(["--check"]) == 1
+
+
+def test_the_committed_page_is_what_the_committed_records_print():
+    assert rs.main(["--check"]) == 0
