@@ -1,0 +1,142 @@
+"""Run a protocol's runs with the code of the commit that fixed it, from today's checkout.
+
+    python -m benchmarks.protocol_at_commit docs/data/comparison-v1 --commit 6b6cab9 --out OUT [--jobs 1]
+    python -m benchmarks.protocol_at_commit docs/data/comparison-v1 --commit 6b6cab9 --out OUT --sync
+
+A protocol's runs all train from one commit (docs/comparison-protocol.md), while later commits move
+the code that reads their records. This keeps the two apart: a git worktree of COMMIT in
+OUT/worktree-COMMIT and a virtual environment in OUT/venv-COMMIT that installs that worktree (without
+dependencies) over this environment's packages, so the commit's own code trains, whatever its layout.
+Before the runs, the records this checkout already holds are copied into the worktree (finished runs
+are not redone); after them, and with `--sync` at any time, records the worktree has and this checkout
+lacks are copied back, to be committed. A protocol.json that differs between the two, or a record
+that exists on both sides with other contents, is refused and nothing is copied.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import sysconfig
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+class CommitError(RuntimeError):
+    """The worktree, its environment or the records cannot be set up as asked; the message says why."""
+
+
+def records(folder: Path) -> dict[str, Path]:
+    """A protocol folder's records by their path inside it: runs/*.json, reruns/*.json, expert.json."""
+    found = [*folder.glob("runs/*.json"), *folder.glob("reruns/*.json"), *folder.glob("expert.json")]
+    return {str(p.relative_to(folder)): p for p in sorted(found)}
+
+
+def plan_copy(source: Path, target: Path) -> list[str]:
+    """The records `source` holds and `target` lacks; refused when protocol.json differs between the two
+    or a record both hold differs (a record is never overwritten)."""
+    protocols = [
+        json.loads((f / "protocol.json").read_text()) if (f / "protocol.json").exists() else None
+        for f in (source, target)
+    ]
+    if protocols[0] != protocols[1]:
+        raise CommitError(f"{source / 'protocol.json'} and {target / 'protocol.json'} differ: not the same protocol")
+    theirs = records(target)
+    clash = [
+        name for name, p in records(source).items() if name in theirs and p.read_bytes() != theirs[name].read_bytes()
+    ]
+    if clash:
+        raise CommitError(f"records differ between {source} and {target}: {', '.join(clash)} (nothing copied)")
+    return [name for name in records(source) if name not in theirs]
+
+
+def copy_records(source: Path, target: Path) -> list[str]:
+    names = plan_copy(source, target)
+    for name in names:
+        (target / name).parent.mkdir(parents=True, exist_ok=True)
+        (target / name).write_bytes((source / name).read_bytes())
+    return names
+
+
+def _run(cmd: list[str], **kw) -> None:
+    done = subprocess.run(cmd, capture_output=True, text=True, **kw)
+    if done.returncode != 0:
+        raise CommitError(f"{' '.join(map(str, cmd))} failed:\n{done.stderr.strip()[-2000:]}")
+
+
+def worktree(commit: str, out: Path) -> Path:
+    """OUT/worktree-COMMIT at COMMIT (made once; refused when it holds another commit)."""
+    full = subprocess.run(
+        ["git", "-C", str(REPO), "rev-parse", "--verify", f"{commit}^{{commit}}"], capture_output=True, text=True
+    )
+    if full.returncode != 0:
+        raise CommitError(f"--commit {commit}: not a commit of {REPO}")
+    sha = full.stdout.strip()
+    path = out / f"worktree-{commit}"
+    if not path.exists():
+        _run(["git", "-C", str(REPO), "worktree", "add", "--detach", str(path), sha])
+    head = subprocess.run(["git", "-C", str(path), "rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip()
+    if head != sha:
+        raise CommitError(f"{path} holds {head[:12] or 'no commit'}, not {commit}: remove it or choose another --out")
+    return path
+
+
+def environment(commit: str, out: Path, tree: Path) -> Path:
+    """OUT/venv-COMMIT: the worktree installed editable, its dependencies read from this environment's
+    packages (a path file), so nothing is downloaded and the commit's own modules are the ones imported."""
+    venv = out / f"venv-{commit}"
+    python = venv / "bin" / "python"
+    if not python.exists():
+        _run([sys.executable, "-m", "venv", "--without-pip", str(venv)])  # pip and setuptools: this environment's
+        site = Path(
+            subprocess.run(
+                [str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+                capture_output=True,
+                text=True,
+                check=True,
+            ).stdout.strip()
+        )
+        (site / "_shared_packages.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
+        _run([str(python), "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation", "-e", str(tree)])
+    return python
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument(
+        "folder", type=Path, help="the protocol's data folder in this checkout (e.g. docs/data/comparison-v1)"
+    )
+    p.add_argument("--commit", required=True, help="the commit that fixed the protocol")
+    p.add_argument("--out", type=Path, required=True, help="where the worktree, its environment and the runs live")
+    p.add_argument("--jobs", type=int, default=1)
+    p.add_argument("--sync", action="store_true", help="only copy the worktree's new records back")
+    a = p.parse_args(argv)
+    folder = a.folder.resolve()
+    try:
+        rel = folder.relative_to(REPO)
+        out = a.out.resolve()
+        out.mkdir(parents=True, exist_ok=True)
+        tree = worktree(a.commit, out)
+        if not a.sync:
+            for name in copy_records(folder, tree / rel):
+                print(f"into the worktree: {name}")
+            python = environment(a.commit, out, tree)
+            cmd = [str(python.parent / "mjx-push"), "protocol", str(rel), "--out", str(out), "--jobs", str(a.jobs)]
+            print(f"running at {a.commit}: {' '.join(cmd)} (in {tree})", flush=True)
+            code = subprocess.run(cmd, cwd=tree, env={**os.environ, "PYTHONPATH": ""}).returncode
+        else:
+            code = 0
+        for name in copy_records(tree / rel, folder):
+            print(f"new record, to commit: {rel / name}")
+    except (CommitError, ValueError) as e:
+        print(f"protocol_at_commit: {e}", file=sys.stderr)
+        return 2
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())

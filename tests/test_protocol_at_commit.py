@@ -1,0 +1,79 @@
+"""benchmarks.protocol_at_commit: a protocol's runs train with the code of its commit (a worktree and an
+environment that imports it), and records move between the checkout and the worktree without ever
+overwriting one."""
+
+import json
+import subprocess
+
+import pytest
+
+from benchmarks import protocol_at_commit as pac
+
+
+def _folder(root, protocol=None, **recs):
+    root.mkdir(parents=True)
+    (root / "protocol.json").write_text(json.dumps(protocol or {"version": "v1"}))
+    for name, content in recs.items():
+        path = root / name.replace("__", "/")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(content))
+    return root
+
+
+def test_records_the_target_lacks_are_copied_and_none_is_overwritten(tmp_path):
+    main = _folder(tmp_path / "main", **{"runs__vpm-s0.json": {"a": 1}, "expert.json": {"e": 1}})
+    tree = _folder(tmp_path / "tree", **{"runs__vpm-s0.json": {"a": 1}, "runs__egru-s1.json": {"b": 2}})
+    assert pac.copy_records(main, tree) == ["expert.json"]
+    assert pac.copy_records(tree, main) == ["runs/egru-s1.json"]
+    assert json.loads((main / "runs/egru-s1.json").read_text()) == {"b": 2}
+    assert pac.copy_records(tree, main) == [] and pac.copy_records(main, tree) == []
+    (tree / "runs/vpm-s0.json").write_text(json.dumps({"a": 9}))
+    (tree / "runs/ugru-s2.json").write_text("{}")
+    with pytest.raises(pac.CommitError, match=r"records differ .*: runs/vpm-s0.json \(nothing copied\)"):
+        pac.copy_records(tree, main)
+    assert not (main / "runs/ugru-s2.json").exists()
+
+
+def test_another_protocol_is_refused(tmp_path):
+    main = _folder(tmp_path / "main", {"version": "v1", "seeds": [0, 1]})
+    tree = _folder(tmp_path / "tree", {"version": "v1", "seeds": [0, 1, 2]}, **{"runs__vpm-s0.json": {}})
+    with pytest.raises(pac.CommitError, match="differ: not the same protocol"):
+        pac.copy_records(tree, main)
+    assert not (main / "runs").exists()
+
+
+def _git(repo, *args):
+    subprocess.run(["git", "-C", str(repo), *args], check=True, capture_output=True)
+
+
+def test_the_environment_imports_the_commits_code_not_the_checkouts(tmp_path, monkeypatch):
+    repo = tmp_path / "repo"
+    (repo / "probe").mkdir(parents=True)
+    (repo / "pyproject.toml").write_text(
+        '[build-system]\nrequires = ["setuptools"]\nbuild-backend = "setuptools.build_meta"\n'
+        '[project]\nname = "probe"\nversion = "0"\n[tool.setuptools]\npackages = ["probe"]\n'
+    )
+    (repo / "probe" / "__init__.py").write_text("WHO = 'first'\n")
+    _git(repo, "init", "-q")
+    _git(repo, "add", ".")
+    _git(repo, "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "first")
+    first = subprocess.run(["git", "-C", str(repo), "rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip()
+    (repo / "probe" / "__init__.py").write_text("WHO = 'later'\n")
+    _git(repo, "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qam", "later")
+    monkeypatch.setattr(pac, "REPO", repo)
+    out = tmp_path / "out"
+    tree = pac.worktree(first[:7], out)
+    python = pac.environment(first[:7], out, tree)
+    got = subprocess.run(
+        [str(python), "-c", "import probe, json; print(probe.WHO, probe.__file__)"],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+    )
+    who, where = got.stdout.split()
+    assert who == "first" and where.startswith(str(tree))
+    # this environment's packages are shared, not reinstalled
+    assert subprocess.run([str(python), "-c", "import numpy"], capture_output=True).returncode == 0
+    assert pac.worktree(first[:7], out) == tree  # made once
+    with pytest.raises(pac.CommitError, match="not a commit"):
+        pac.worktree("nope123", out)
