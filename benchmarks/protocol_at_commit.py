@@ -30,10 +30,19 @@ class CommitError(RuntimeError):
     """The worktree, its environment or the records cannot be set up as asked; the message says why."""
 
 
+def _settled(path: Path) -> bool:
+    """A record that will not change: a run finished or failed (not one still training), or the expert's."""
+    try:
+        return json.loads(path.read_text()).get("status", "finished") in ("finished", "failed")
+    except (OSError, json.JSONDecodeError) as e:
+        raise CommitError(f"{path}: not a readable record ({e})") from e
+
+
 def records(folder: Path) -> dict[str, Path]:
-    """A protocol folder's records by their path inside it: runs/*.json, reruns/*.json, expert.json."""
+    """A protocol folder's settled records by their path inside it: runs/*.json, reruns/*.json,
+    expert.json; a run still training is left where it is (its finished record replaces it there)."""
     found = [*folder.glob("runs/*.json"), *folder.glob("reruns/*.json"), *folder.glob("expert.json")]
-    return {str(p.relative_to(folder)): p for p in sorted(found)}
+    return {str(p.relative_to(folder)): p for p in sorted(found) if _settled(p)}
 
 
 def plan_copy(source: Path, target: Path) -> list[str]:
@@ -46,6 +55,9 @@ def plan_copy(source: Path, target: Path) -> list[str]:
     if protocols[0] != protocols[1]:
         raise CommitError(f"{source / 'protocol.json'} and {target / 'protocol.json'} differ: not the same protocol")
     theirs = records(target)
+    unsettled = [name for name in records(source) if (target / name).exists() and name not in theirs]
+    if unsettled:
+        raise CommitError(f"{target} records {', '.join(unsettled)} as still training: finish or remove it first")
     clash = [
         name for name, p in records(source).items() if name in theirs and p.read_bytes() != theirs[name].read_bytes()
     ]

@@ -34,6 +34,20 @@ def test_records_the_target_lacks_are_copied_and_none_is_overwritten(tmp_path):
     assert not (main / "runs/ugru-s2.json").exists()
 
 
+def test_a_run_still_training_is_never_copied_and_its_finished_record_then_is(tmp_path):
+    main = _folder(tmp_path / "main")
+    tree = _folder(tmp_path / "tree", **{"runs__stacked-s2.json": {"status": "training"}, "expert.json": {"e": 1}})
+    assert pac.copy_records(tree, main) == ["expert.json"]
+    assert not (main / "runs/stacked-s2.json").exists()
+    (tree / "runs/stacked-s2.json").write_text(json.dumps({"status": "finished"}))
+    assert pac.copy_records(tree, main) == ["runs/stacked-s2.json"]
+    # the other way: the checkout's finished record goes into a worktree that holds the run as training
+    # only when that is resolved by hand, never by overwriting
+    other = _folder(tmp_path / "other", **{"runs__stacked-s2.json": {"status": "training"}})
+    with pytest.raises(pac.CommitError, match="runs/stacked-s2.json as still training"):
+        pac.copy_records(main, other)
+
+
 def test_another_protocol_is_refused(tmp_path):
     main = _folder(tmp_path / "main", {"version": "v1", "seeds": [0, 1]})
     tree = _folder(tmp_path / "tree", {"version": "v1", "seeds": [0, 1, 2]}, **{"runs__vpm-s0.json": {}})
