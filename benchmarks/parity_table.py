@@ -25,6 +25,8 @@ import json
 import sys
 from pathlib import Path
 
+from benchmarks import generated_block
+
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO / "docs" / "parity-sim.json"
 PAGE = REPO / "docs" / "parity.md"
@@ -250,12 +252,7 @@ def detail(data: dict | None = None) -> str:
 
 
 def splice(page: str, body: str, begin: str = BEGIN, end: str = END) -> str:
-    """`page` with the text between its markers replaced by `body`; a page without both markers is refused."""
-    if page.count(begin) != 1 or page.count(end) != 1 or page.index(begin) > page.index(end):
-        raise DataError(f"{PAGE.name}: needs one '{begin}' line and one '{end}' line after it")
-    head, rest = page.split(begin, 1)
-    _, tail = rest.split(end, 1)
-    return f"{head}{begin}\n\n{body}\n\n{end}{tail}"
+    return generated_block.splice(page, body, begin, end, PAGE.name, DataError)
 
 
 def main(argv=None) -> int:
@@ -275,15 +272,9 @@ def main(argv=None) -> int:
     except DataError as e:
         print(f"parity_table: {e}", file=sys.stderr)
         return 2
-    if args.check:
-        if updated != page:
-            print(f"{PAGE}: the parity blocks differ from {DATA} (python -m benchmarks.parity_table --write)")
-            return 1
-        print(f"{PAGE}: the parity blocks are what {DATA.name} prints")
-        return 0
-    PAGE.write_text(updated)
-    print(f"rewrote the parity blocks of {PAGE}")
-    return 0
+    return generated_block.write_or_check(
+        PAGE, page, updated, args.check, "the parity blocks", "python -m benchmarks.parity_table"
+    )
 
 
 if __name__ == "__main__":

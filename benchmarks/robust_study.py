@@ -21,6 +21,7 @@ import json
 import sys
 from pathlib import Path
 
+from benchmarks import generated_block
 from benchmarks.stress_table import _trim
 
 REPO = Path(__file__).resolve().parents[1]
@@ -170,10 +171,7 @@ def block(study: Path = STUDY) -> str:
 
 
 def splice(page: str, body: str) -> str:
-    if page.count(BEGIN) != 1 or page.count(END) != 1 or page.index(BEGIN) > page.index(END):
-        raise StudyError(f"{PAGE.name}: needs one '{BEGIN}' line and one '{END}' line after it")
-    head, rest = page.split(BEGIN, 1)
-    return f"{head}{BEGIN}\n\n{body}\n\n{END}{rest.split(END, 1)[1]}"
+    return generated_block.splice(page, body, BEGIN, END, PAGE.name, StudyError)
 
 
 def add(record_path: Path, arm: str, seed: int, study: Path = STUDY) -> Path:
@@ -213,15 +211,9 @@ def main(argv: list[str] | None = None) -> int:
     except StudyError as e:
         print(f"robust_study: {e}", file=sys.stderr)
         return 2
-    if a.check:
-        if updated != page:
-            print(f"{PAGE}: the robust-v1 block differs from its records (python -m benchmarks.robust_study --write)")
-            return 1
-        print(f"{PAGE}: the robust-v1 block is what its records print")
-        return 0
-    PAGE.write_text(updated)
-    print(f"rewrote the robust-v1 block of {PAGE}")
-    return 0
+    return generated_block.write_or_check(
+        PAGE, page, updated, a.check, "the robust-v1 block", "python -m benchmarks.robust_study"
+    )
 
 
 if __name__ == "__main__":
