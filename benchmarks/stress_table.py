@@ -16,6 +16,8 @@ import json
 import sys
 from pathlib import Path
 
+from benchmarks import generated_block
+
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO / "docs" / "data" / "stress"
 PAGE = REPO / "docs" / "robustness.md"
@@ -59,10 +61,7 @@ def table() -> str:
 
 
 def render(page: str) -> str:
-    start, end = page.find("<!-- BEGIN stress table"), page.find(END)
-    if start < 0 or end < start:
-        raise SystemExit(f"{PAGE}: no BEGIN/END stress table markers")
-    return page[:start] + BEGIN + "\n\n" + table() + "\n\n" + page[end:]
+    return generated_block.splice(page, table(), BEGIN, END, str(PAGE), error=SystemExit)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -82,18 +81,10 @@ def main(argv: list[str] | None = None) -> int:
         out.write_text(json.dumps(_trim(rec), indent=1) + "\n")
         print(f"written {out}")
     page = PAGE.read_text()
-    new = render(page)
-    if a.check:
-        if new != page:
-            print(f"{PAGE} is stale: python -m benchmarks.stress_table --write", file=sys.stderr)
-            return 1
-        print(f"{PAGE}: the stress table is up to date")
-        return 0
-    if a.write or a.action == "add":
-        PAGE.write_text(new)
-        print(f"rewrote the stress table of {PAGE}")
-    else:
-        print(table())
+    if a.check or a.write or a.action == "add":
+        command = "python -m benchmarks.stress_table"
+        return generated_block.write_or_check(PAGE, page, render(page), a.check, "the stress table", command)
+    print(table())
     return 0
 
 
