@@ -236,6 +236,25 @@ def test_friction_force_samplers_differ_as_in_the_paper():
     assert np.mean(f["improved"] > 0.8 * hi) > 5 * np.mean(f["uniform"] > 0.8 * hi)
 
 
+def test_friction_force_samples_are_drawn_once_per_process_and_cannot_be_changed(monkeypatch):
+    """Every report draws the figure's samples; a second report reuses the first's draws."""
+    from mjx_push import objects
+
+    calls = []
+    sample = objects.sample
+    monkeypatch.setattr(objects, "sample", lambda *a: calls.append(1) or sample(*a))
+    first = report.friction_force_samples(n=64, seed=5)
+    assert len(calls) == 2  # traced once per sampler
+    again = report.friction_force_samples(n=64, seed=5)
+    assert len(calls) == 2 and all(again[k] is first[k] for k in first)
+    with pytest.raises(ValueError, match="read-only"):
+        again["uniform"][0] = 0.0
+    again.pop("uniform")  # the caller's dict, not the cache's
+    assert set(report.friction_force_samples(n=64, seed=5)) == {"uniform", "improved"}
+    report.friction_force_samples(n=64, seed=6)
+    assert len(calls) == 4  # another seed is drawn
+
+
 @pytest.mark.renderer
 def test_eval_cli_writes_json_and_a_video(tiny_egru_run, tmp_path):
     from mjx_push.export.cpu_env import renderer_available
