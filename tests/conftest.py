@@ -18,8 +18,17 @@ use_test_compilation()  # the cache, every program in it, most optimisations off
 
 # Longest files first. Two workers take whole files (--dist loadfile) in collection order, so a long
 # file collected last runs alone at the end (a long file alphabetically last once kept one core idle
-# for the last ~4 minutes of a cold run).
-_LONGEST_FIRST = ("test_batch.py", "test_eval.py", "test_run.py", "test_stress.py", "test_train_mjx.py")
+# for the last ~4 minutes of a cold run). Measured per file: python -m benchmarks.suite_compiles.
+_LONGEST_FIRST = (
+    "test_batch.py",
+    "test_run.py",
+    "test_tiny_egru_run.py",
+    "test_physics.py",
+    "test_stress.py",
+    "test_learner_features.py",
+    "test_data_parallel.py",
+    "test_train_mjx.py",
+)
 
 
 @pytest.hookimpl(tryfirst=True)

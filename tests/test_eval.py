@@ -2,12 +2,10 @@
 
 import mjx_push.train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
 
-import dataclasses
 import json
 import shlex
 import math
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -16,9 +14,8 @@ from mjx_push import scene
 from tests.helpers import B, HOME_XY, a_s_for, action_for, make_params
 from mjx_push.train.comparison import report
 from mjx_push.cli import main as cli_main
-from mjx_push.train.evaluate import evaluator_for, sem, summarize
+from mjx_push.train.evaluate import sem, summarize
 from mjx_push.train.episodes import EvalSpec
-from mjx_push.train.runs.policies import Policy
 
 
 # --- arithmetic ---------------------------------------------------------------------------------------
@@ -151,73 +148,7 @@ def test_scripted_pushes_give_the_known_correction_counts(box_sim):
     assert rewards[3] == 0 and int(c.overshoot[3]) == 0 and int(c.distance[3]) == 0
 
 
-# --- the evaluator on a trained policy ----------------------------------------------------------------
-@pytest.fixture(scope="module")
-def evaluator(tiny_egru_run):
-    cfg = tiny_egru_run[0]
-    return evaluator_for(cfg.env, cfg.train.agent, 2)  # the CLI test below reuses its compiled episodes
-
-
-def test_the_same_seeds_give_the_same_episodes_to_every_policy(tiny_egru_run, evaluator):
-    cfg, d, _, state = tiny_egru_run
-    from mjx_push.train.runs import policies
-
-    trained = policies.load_policy(d / "best_policy")
-    from mjx_push.train.networks import make_networks
-
-    other_actor = make_networks(cfg.train.agent).init_actor(jax.random.PRNGKey(99), cfg.env.episode_length)
-    other = Policy(cfg, other_actor, trained.encoder_params, {})
-    spec = EvalSpec(setting="standard", shape="cylinder", episodes=3, batch=2, record=3)
-    a, b = evaluator.evaluate(trained, spec), evaluator.evaluate(other, spec)
-    for ra, rb in zip(a["recorded"], b["recorded"]):
-        np.testing.assert_array_equal(ra["qpos"][0], rb["qpos"][0])  # same object, start, goal
-        jax.tree.map(np.testing.assert_array_equal, ra["params"], rb["params"])
-    assert not np.allclose(a["recorded"][0]["action"], b["recorded"][0]["action"])  # different policies
-    # The distances: reset from the drawn start and goal (the same for both policies), end from the
-    # object's last recorded pose; success is exactly "ends within tau".
-    obj = evaluator.env("cylinder").ids.object_qpos
-    for res in (a, b):
-        per = res["per_episode"]
-        for i, r in enumerate(res["recorded"]):
-            goal = r["params"].goal[:2]
-            assert per["start_distance"][i] == pytest.approx(np.linalg.norm(r["params"].start[:2] - goal), abs=1e-6)
-            if not per["invalid"][i]:
-                assert per["final_distance"][i] == pytest.approx(
-                    np.linalg.norm(r["qpos"][-1][obj : obj + 2] - goal), abs=1e-6
-                )
-        np.testing.assert_array_equal(per["success"], (per["final_distance"] < 0.01) & ~per["invalid"])
-    np.testing.assert_array_equal(a["per_episode"]["start_distance"], b["per_episode"]["start_distance"])
-    # Episodes do not depend on the batch they were simulated in.
-    p2, _ = evaluator.episode_params(spec, "cylinder", np.array([0, 1, 2]))
-    p1, _ = evaluator.episode_params(spec, "cylinder", np.array([2]))
-    np.testing.assert_array_equal(np.asarray(p2.goal[2]), np.asarray(p1.goal[0]))
-    assert a["summary"]["success"]["n"] == 3
-
-
-def test_report_end_to_end_from_a_trained_checkpoint(tiny_egru_run, evaluator, tmp_path):
-    cfg, d, _, _ = tiny_egru_run
-    from mjx_push.train.runs import policies
-
-    policy = policies.load_policy(d / "best_policy")
-    results = {}
-    for agent in ("egru", "vpm"):  # the same policy under two names: the report's layout, not a comparison
-        results[agent] = {}
-        for shape in ("cylinder",):
-            res = evaluator.evaluate(policy, EvalSpec(setting="difficult", shape=shape, episodes=2, batch=2))
-            results[agent][shape] = [res["summary"]]
-    path = report.write_report(
-        tmp_path, results, {"budget": "smoke", "seeds": 1, "episodes": 2, "setting": "difficult", "wall_s": 1.0}
-    )
-    text = path.read_text()
-    assert "| cylinder | eGRU |" in text and "| cylinder | VPM |" in text
-    d = results["egru"]["cylinder"][0]
-    assert f"{100 * d['start_distance']['mean']:.1f} -> {100 * d['final_distance']['mean']:.1f}" in text
-    assert (tmp_path / "metrics.png").stat().st_size > 10_000
-    assert (tmp_path / "friction_force.png").stat().st_size > 10_000
-    combined = json.loads((tmp_path / "results.json").read_text())["combined"]
-    assert combined["egru"]["cylinder"]["success"]["n_episodes"] == 2
-
-
+# --- the report ---------------------------------------------------------------------------------------
 def test_read_training_names_a_directory_without_metrics(tmp_path):
     with pytest.raises(ValueError, match="no metrics.csv"):
         report.read_training(tmp_path)
@@ -255,200 +186,7 @@ def test_friction_force_samples_are_drawn_once_per_process_and_cannot_be_changed
     assert len(calls) == 4  # another seed is drawn
 
 
-@pytest.mark.renderer
-def test_eval_cli_writes_json_and_a_video(tiny_egru_run, tmp_path):
-    from mjx_push.export.cpu_env import renderer_available
-
-    if not renderer_available():
-        pytest.skip("MuJoCo's offscreen renderer (EGL) is not available on this machine")
-    _, d, _, _ = tiny_egru_run
-    out = tmp_path / "eval.json"
-    gif = tmp_path / "episodes.gif"
-    assert (
-        cli_main(
-            [
-                "eval",
-                str(d),
-                "--episodes",
-                "2",
-                "--batch",
-                "2",
-                "--shape",
-                "cylinder",
-                "--setting",
-                "standard",
-                "--out",
-                str(out),
-                "--video",
-                str(gif),
-                "--video-episodes",
-                "1",
-                "--cpu",
-                "analytic",
-                "render",
-            ]
-        )
-        == 0
-    )
-    rec = json.loads(out.read_text())
-    assert set(rec["summary"]) == {"success", "reward", "overshoot", "distance", "start_distance", "final_distance"}
-    assert len(rec["per_episode"]["reward"]) == 2
-    # --cpu: the same episodes in CPU MuJoCo per mask source, with their agreement with the MJX run.
-    assert set(rec["cpu"]) == {"analytic", "render"}
-    for source, cpu in rec["cpu"].items():
-        starts = [r["start_distance"] for r in cpu["episodes"]]
-        np.testing.assert_allclose(starts, rec["per_episode"]["start_distance"], atol=1e-5, err_msg=source)
-        a = cpu["agreement"]["all"]
-        assert set(cpu["agreement"]) == {"all", "cylinders"} and a["episodes"] == 2
-        assert a["mjx_success"] == pytest.approx(rec["summary"]["success"]["mean"])
-        assert a["cpu_success"] == pytest.approx(cpu["summary"]["success"]["mean"])
-    import imageio.v2 as imageio
-
-    frames = imageio.mimread(gif)
-    assert len(frames) == 4  # reset + 3 steps of the tiny episode
-    assert frames[0].shape[1] == 2 * frames[0].shape[0] * 320 // 240  # two views side by side
-
-
 # --- reproduce: reuse, cached evaluations, worker processes -------------------------------------------
-def _reproduce_tiny(out, cfg, agents=("egru",), teacher_free=None, report_only=False) -> str:
-    """`reproduce` with every agent at the tiny run's configuration `cfg`: cylinders only, 2 episodes, no
-    expert row (tests/test_expert.py has it). Returns its log."""
-    from mjx_push.train.comparison import reproduce as rep
-    from mjx_push.train.comparison.study import Study
-
-    lines: list[str] = []
-    study = Study(
-        "smoke",
-        out,
-        episodes=2,
-        agents=agents,
-        shapes=("cylinder",),
-        teacher_free=teacher_free,
-        config_hook=lambda _: cfg,
-    )
-    rep.reproduce(study, log=lines.append, expert=False, report_only=report_only)
-    return "\n".join(lines)
-
-
-def test_reproduce_reuses_the_run_and_caches_each_evaluation(tiny_egru_run, evaluator, tmp_path):
-    import shutil
-
-    from mjx_push.train.comparison import reproduce as rep
-    from mjx_push.train.comparison.cache import policy_fingerprint, scored_policy
-    from mjx_push.train.comparison.study import Study
-    from mjx_push.train.runs import policies
-    from mjx_push.train.networks import make_networks
-
-    cfg, d, _, _ = tiny_egru_run
-    out = tmp_path / "repro"
-    run_dir = out / "runs" / "egru-s0"
-    shutil.copytree(d, run_dir)
-
-    def go():
-        log = _reproduce_tiny(out, cfg)
-        return log, json.loads((out / "results.json").read_text())["combined"]["egru"]["cylinder"]
-
-    log, first = go()
-    assert "reusing finished run" in log and "reusing evaluation" not in log
-    cache = run_dir / "eval-difficult-cylinder-2.json"
-    rec = json.loads(cache.read_text())
-    name, step = scored_policy(run_dir)
-    assert rec["policy"] == name and rec["policy_env_steps"] == step
-    assert rec["policy_sha256"] == policy_fingerprint(run_dir / name) and len(rec["per_episode"]["reward"]) == 2
-    text = (out / "report.md").read_text()
-    assert "| cylinder | eGRU |" in text
-    # The training section comes from the run's metrics.csv: its evaluations and its cost.
-    training = report.read_training(run_dir)
-    assert training["eval_env_steps"] == [6, 12] and training["env_steps"] == 12 and training["wall_s"] > 0
-    assert f"| eGRU | 1 | 12 | {training['updates']:,} |" in text and f"| {step:,} |" in text
-    assert (out / "learning_curves.png").stat().st_size > 10_000
-
-    log, again = go()
-    assert "reusing evaluation" in log and again == first, (again, first)
-
-    stale = dict(rec, per_episode={k: v for k, v in rec["per_episode"].items() if k != "start_distance"})
-    cache.write_text(json.dumps(stale))  # a cache from before the distances were recorded
-    log, _ = go()
-    assert "reusing evaluation" not in log and "start_distance" in json.loads(cache.read_text())["per_episode"]
-
-    cache.write_text("{ truncated")  # a damaged cache is recomputed, not trusted
-    log, _ = go()
-    assert "reusing evaluation" not in log and json.loads(cache.read_text())["summary"] == rec["summary"]
-
-    # The report from whatever has finished: the eGRU run (its evaluation reused), not the absent VPM run.
-    lines = _reproduce_tiny(out, cfg, agents=("egru", "vpm"), report_only=True).splitlines()
-    assert "reusing evaluation" in "\n".join(lines)
-    assert f"{out / 'runs' / 'vpm-s0'} has not finished: left out of the report" in lines
-    results = json.loads((out / "results.json").read_text())
-    assert list(results["combined"]) == ["egru"] and results["meta"]["missing_runs"] == ["vpm-s0"]
-    assert "Not finished when this report was built, so not in it: vpm-s0." in (out / "report.md").read_text()
-    with pytest.raises(ValueError, match="no finished run"):
-        rep.reproduce(Study("smoke", tmp_path / "empty", episodes=2, agents=("vpm",)), report_only=True, expert=False)
-
-    # New weights under the same name: the cached evaluation no longer belongs to them.
-    policy = policies.load_policy(run_dir / name)
-    other = make_networks(cfg.train.agent).init_actor(jax.random.PRNGKey(7), cfg.env.episode_length)
-    policies.save_policy(run_dir / name, cfg, other, policy.encoder_params, policy.scores)
-    log, _ = go()
-    assert "reusing evaluation" not in log
-    assert json.loads(cache.read_text())["policy_sha256"] != rec["policy_sha256"]
-
-
-def test_reproduce_teacher_free_forks_each_finished_run_and_reports_the_forks(
-    tiny_egru_run, evaluator, tmp_path, monkeypatch
-):
-    """--teacher-free N: the finished budget run is forked at its end with the teacher-free
-    configuration; the report in OUT/teacher-free scores the fork, the budget's run is only read, and a
-    second call reuses the fork and its evaluation. The fork's training is stood in for by a copy of
-    the run (a real fork costs a compilation here; tests/test_run.py trains real forks)."""
-    import shutil
-
-    from mjx_push.train import presets
-    from mjx_push.train.comparison.study import teacher_free_config
-    from mjx_push.train.runs import run as run_mod
-    from mjx_push.train.runs.fork import ForkSource
-
-    cfg, d, _, _ = tiny_egru_run
-    out = tmp_path / "repro"
-    base = out / "runs" / "egru-s0"
-    shutil.copytree(d, base)
-    base_files = sorted(p.name for p in base.iterdir())
-    calls = []
-
-    def fake_fork(c, run_dir, resume, fork=None):
-        calls.append((c, run_dir, resume, fork))
-        shutil.copytree(fork.run_dir, run_dir)
-        (run_dir / "config.json").write_text(json.dumps(presets.config_dict(c)))
-
-    monkeypatch.setattr(run_mod, "run", fake_fork)
-
-    def go(**kw):
-        return _reproduce_tiny(out, cfg, teacher_free=6, **kw)
-
-    log = go()
-    fork = out / "teacher-free" / "runs" / "egru-s0"
-    assert calls == [(teacher_free_config(cfg, 6), fork, False, ForkSource(base))]
-    assert f"reusing finished run {base}" in log and f"forking {base} at its last checkpoint into {fork}" in log
-    assert (fork / "eval-difficult-cylinder-2.json").is_file() and not (
-        base / "eval-difficult-cylinder-2.json"
-    ).exists()
-    assert sorted(p.name for p in base.iterdir()) == base_files
-    results = json.loads((out / "teacher-free" / "results.json").read_text())
-    assert results["meta"]["teacher_free"] == 6 and results["meta"]["teacher_free_env_steps"] == [12, 15, 18]
-    assert list(results["combined"]) == ["egru"]
-    text = " ".join((out / "teacher-free" / "report.md").read_text().split())  # wrapped lines joined
-    assert "--teacher-free 6" in text and "between 12 and 15 env steps" in text and "| cylinder | eGRU |" in text
-    assert not (out / "report.md").exists()  # the plain comparison's report is not written over
-
-    log = go()
-    assert len(calls) == 1 and f"reusing finished run {fork}" in log and "reusing evaluation" in log
-    log = go(report_only=True)
-    assert "reusing evaluation" in log
-    shutil.rmtree(fork)
-    with pytest.raises(ValueError, match="no finished run in .*teacher-free"):
-        go(report_only=True)
-
-
 def test_teacher_free_config_anneals_after_the_budget_and_refuses_what_it_cannot_anneal(tmp_path, capsys):
     from mjx_push.train import configio, presets
     from mjx_push.train.comparison import reproduce as rep
@@ -584,46 +322,6 @@ def test_reproduce_restarts_a_run_killed_before_its_first_checkpoint(tmp_path, m
     lines: list[str] = []
     rep.train_or_reuse(cfg, run_dir, lines.append)
     assert calls == [(run_dir, False, [])] and "stopped before its first checkpoint" in lines[0]
-
-
-def test_reproduce_cpu_evaluates_each_run_on_its_mjx_episodes_and_caches_it(tiny_egru_run, evaluator, tmp_path):
-    import shutil
-
-    from mjx_push.export.report_parity import cpu_evaluation, parity_report
-    from mjx_push.train.comparison import reproduce as rep
-    from mjx_push.train.comparison.study import Study
-
-    cfg, d, _, _ = tiny_egru_run
-    out = tmp_path / "repro"
-    run_dir = out / "runs" / "egru-s0"
-    shutil.copytree(d, run_dir)
-    total = cfg.train.loop.total_env_steps
-    # The tiny run's length, so the parity report counts it as finished (the hook is the tests' only).
-    study = Study("smoke", out, episodes=2, shapes=("cylinder",), total_env_steps=total, config_hook=lambda _: cfg)
-    rep.agent_job(study, "egru", 0, train=False)
-    mjx = json.loads((run_dir / "eval-difficult-cylinder-2.json").read_text())
-    lines: list[str] = []
-    path = parity_report(study, [("egru", 0), ("vpm", 0)], ("analytic",), lines.append)
-    cpu = json.loads((run_dir / "eval-cpu-analytic-difficult-cylinder-2.json").read_text())
-    # The CPU run meets the MJX evaluation's episodes, and its agreement reads both runs' outcomes.
-    np.testing.assert_allclose(
-        [r["start_distance"] for r in cpu["records"]], mjx["per_episode"]["start_distance"], atol=1e-5
-    )
-    a = cpu["agreement"]["all"]
-    assert a["episodes"] == 2 and a["mjx_success"] == pytest.approx(mjx["summary"]["success"]["mean"])
-    assert a["cpu_success"] == pytest.approx(cpu["summary"]["success"]["mean"])
-    text = path.read_text()
-    assert "| cylinder | eGRU | analytic |" in text and "Not finished, so not in this table: vpm-s0." in text
-    assert not any("reusing" in line for line in lines)
-    lines.clear()
-    cpu_evaluation(run_dir, "difficult", "cylinder", 2, "analytic", lines.append)
-    assert any("reusing evaluation" in line for line in lines)
-    with pytest.raises(ValueError, match="no MJX evaluation to compare with"):
-        cpu_evaluation(run_dir, "difficult", "square", 2, "analytic")
-    with pytest.raises(ValueError, match="no finished run"):
-        parity_report(study, [("vpm", 0)], ("analytic",))
-    with pytest.raises(ValueError, match="no finished run"):  # a total the run has not been trained to
-        parity_report(dataclasses.replace(study, total_env_steps=total + 1), [("egru", 0)], ("analytic",))
 
 
 def test_reproduce_cpu_refuses_what_it_cannot_evaluate(tmp_path, capsys):

@@ -11,25 +11,7 @@ import pytest
 from mjx_push import encoder as enc
 from tests.helpers import tiny_run_config
 from mjx_push.train.runs import run as run_mod
-from mjx_push.train.runs import policies
 from mjx_push.train.push_task import make_push_adapter
-
-
-def test_egru_trains_on_the_pushing_scene(tiny_egru_run):
-    cfg, d, summary, state = tiny_egru_run
-    assert cfg.env.objects.mode == "improved"  # eGRU = GRU + improved force sampling
-    # Warm-up ends with the first batch (6 steps), so both batches run 2 * 3 * 0.5 = 3 updates.
-    assert summary["env_steps"] == 12 and summary["updates"] == 6
-    data = jax.device_get(state.buffer.data)
-    valid = data["valid"]
-    assert valid.sum() == 4  # two batches of two episodes, none flagged invalid
-    z = data["z_obj"][valid]  # latents of every step's mask, reset observation included
-    assert np.isfinite(z).all() and z.shape[1:] == (4, 6)
-    # Different objects give different latents; the goal's latent is the goal mask's.
-    assert np.ptp(z[:, 0], axis=0).max() > 1e-4
-    assert np.isfinite(jax.tree.leaves(state.sac.actor_params)[0]).all()
-    policy = policies.load_policy(d / "best_policy")
-    assert policy.config.agent == "egru"
 
 
 def test_adapter_latents_are_the_encoder_of_the_masks(encoder_file):
