@@ -13,6 +13,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 def test_the_plugin_records_each_tests_compilations_under_that_test(pytester, monkeypatch, tmp_path):
     monkeypatch.setenv("PYTHONPATH", str(REPO))
+    monkeypatch.delenv("PYTEST_XDIST_WORKER", raising=False)  # set when this suite runs under xdist
     pytester.makepyfile(
         test_two="""
         import jax, jax.numpy as jnp
