@@ -206,15 +206,18 @@ def test_reset_computes_what_the_first_step_reads(box_sim):
     state = box_sim.start(params)
     env, ids = box_sim.env, box_sim.env.ids
     models = jax.vmap(env.model)(state.info["params"])
-    kin = state.pipeline_state
+    # Placed on one device like the forward pass's output: jit keys its programs on whether arguments
+    # are committed to a device, so the reset's own (uncommitted) arrays would compile every program twice.
+    kin = jax.device_put(state.pipeline_state, jax.devices()[0])
     full = jax.jit(jax.vmap(mjx.forward))(models, kin)
 
     def flange(m, d):
         p = d.site_xpos[ids.flange_site]
         return p, d.site_xmat[ids.flange_site], mjx.jac(m, d, p, ids.link7_body)[0]
 
-    # Two compiled programs: equal to rounding (the steps below share one, and must agree exactly).
-    for x, y in zip(jax.vmap(flange)(models, kin), jax.vmap(flange)(models, full)):
+    # Two compiled programs (reset, forward): equal to rounding.
+    read = jax.jit(jax.vmap(flange))
+    for x, y in zip(read(models, kin), read(models, full)):
         np.testing.assert_allclose(np.asarray(x), np.asarray(y), atol=1e-6)
     # Joint velocities that drive the rod into the object: contacts appear in the first substeps.
     ctrl = jnp.tile(jnp.asarray([0.0, 0.6, 0.0, 0.6, 0.0, -0.3, 0.0]), (B, 1))
@@ -222,6 +225,7 @@ def test_reset_computes_what_the_first_step_reads(box_sim):
     a, b = kin, full
     for _ in range(200):
         a, b = step(models, a), step(models, b)
+    assert step._cache_size() == 1  # one program steps both, so they must agree exactly
     o = ids.object_qpos
     moved = np.linalg.norm(np.asarray(a.qpos[:, o : o + 2] - kin.qpos[:, o : o + 2]), axis=1)
     assert np.all(moved > 1e-3), moved  # the rod pushed every object
