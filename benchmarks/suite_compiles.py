@@ -2,7 +2,7 @@
 the XLA compilations it triggered (JAX's own compile events), and a summary of what it recorded.
 
     python -m pytest -p benchmarks.suite_compiles --compiles-out OUT        # records OUT/<worker>.jsonl
-    python -m benchmarks.suite_compiles OUT [--top 25] [--json OUT.json]      # the tables
+    python -m benchmarks.suite_compiles OUT [--top 25] [--out OUT.json]       # the tables
 
 The suite's time is mostly compilation on CPU, so this is how to find what to share or shrink: the
 tests that compile the most, the programs that cost the most in all, and the programs compiled by
@@ -21,6 +21,8 @@ from collections import defaultdict
 from pathlib import Path
 
 import pytest
+
+from benchmarks.output import write_json
 
 _COMPILE = "/jax/core/compile/backend_compile_duration"
 _TRACE = "/jax/core/compile/jaxpr_trace_duration"
@@ -125,7 +127,7 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("folder", type=Path)
     ap.add_argument("--top", type=int, default=25)
-    ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--out", type=Path, default=None, help="also write the summary as JSON here")
     a = ap.parse_args(argv)
     s = summarise(a.folder)
     print("worker   wall (s)  compiling (s)")
@@ -140,8 +142,8 @@ def main(argv=None) -> None:
     print(f"\ncostliest {a.top} programs (all compilations summed)\n  compiling (s)  count  tests  workers  program")
     for name, p in sorted(s["programs"].items(), key=lambda kv: -kv[1]["compile_s"])[: a.top]:
         print(f"  {p['compile_s']:13.1f}  {p['count']:5d}  {len(p['tests']):5d}  {len(p['workers']):7d}  {name}")
-    if a.json:
-        a.json.write_text(json.dumps(s, indent=1))
+    if a.out:
+        write_json(a.out, s)
 
 
 if __name__ == "__main__":

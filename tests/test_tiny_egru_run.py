@@ -18,6 +18,7 @@ from mjx_push.train.episodes import EvalSpec
 from mjx_push.train.evaluate import evaluator_for
 from mjx_push.train.runs import policies
 from mjx_push.train.runs.policies import Policy
+from tests.helpers import renderer_or_skip
 
 
 def test_egru_trains_on_the_pushing_scene(tiny_egru_run):
@@ -46,8 +47,6 @@ def evaluator(tiny_egru_run):
 
 def test_the_same_seeds_give_the_same_episodes_to_every_policy(tiny_egru_run, evaluator):
     cfg, d, _, state = tiny_egru_run
-    from mjx_push.train.runs import policies
-
     trained = policies.load_policy(d / "best_policy")
     from mjx_push.train.networks import make_networks
 
@@ -82,8 +81,6 @@ def test_the_same_seeds_give_the_same_episodes_to_every_policy(tiny_egru_run, ev
 
 def test_report_end_to_end_from_a_trained_checkpoint(tiny_egru_run, evaluator, tmp_path):
     cfg, d, _, _ = tiny_egru_run
-    from mjx_push.train.runs import policies
-
     policy = policies.load_policy(d / "best_policy")
     results = {}
     for agent in ("egru", "vpm"):  # the same policy under two names: the report's layout, not a comparison
@@ -106,10 +103,7 @@ def test_report_end_to_end_from_a_trained_checkpoint(tiny_egru_run, evaluator, t
 
 @pytest.mark.renderer
 def test_eval_cli_writes_json_and_a_video(tiny_egru_run, tmp_path):
-    from mjx_push.export.cpu_env import renderer_available
-
-    if not renderer_available():
-        pytest.skip("MuJoCo's offscreen renderer (EGL) is not available on this machine")
+    renderer_or_skip()  # fails instead under MJX_PUSH_REQUIRE_RENDERER=1 (CI)
     _, d, _, _ = tiny_egru_run
     out = tmp_path / "eval.json"
     gif = tmp_path / "episodes.gif"
@@ -184,7 +178,6 @@ def test_reproduce_reuses_the_run_and_caches_each_evaluation(tiny_egru_run, eval
     from mjx_push.train.comparison import reproduce as rep
     from mjx_push.train.comparison.cache import policy_fingerprint, scored_policy
     from mjx_push.train.comparison.study import Study
-    from mjx_push.train.runs import policies
     from mjx_push.train.networks import make_networks
 
     cfg, d, _, _ = tiny_egru_run
