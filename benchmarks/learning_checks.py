@@ -10,6 +10,9 @@ Checks (each alone on 2 CPU cores takes about a minute, compilation included):
   steps, from under 20 % untrained, its final distances under the success radius.
 - toy-all-features: every learner feature at once (normalisation, privileged critic, cloning, the
   radius curriculum) reaches >= 90 % in-run success on the toy task at 1,280 env steps.
+- toy-two-processes: the toy task of toy-vpm trained as one data-parallel run of two processes on
+  localhost (one CPU device each, `jax.distributed`, as `--num-processes 2`) reaches the same >= 90 %
+  in-run success at 1,600 env steps, both processes reporting the same.
 - expert-1cm: the scripted expert, the teacher of every preset, pushes each of 8 standard episodes
   (both shapes) to within 1 cm, every object ending under half its starting distance.
 - scene-imitation: on the MJX pushing scene (one cylinder, 10-step episodes), cloning the expert's
@@ -91,6 +94,41 @@ def toy_all_features() -> dict:
         "checks": {"last in-run success >= 0.9": last >= 0.9},
         "success": last,
         "env_steps": cfg.loop.total_env_steps,
+    }
+
+
+def toy_two_processes() -> dict:
+    import tempfile
+
+    from mjx_push.env import EnvConfig
+    from mjx_push.train.config import RunConfig
+    from tests import two_processes
+    from tests.toy import TAU, toy_config
+
+    steps = 1600
+    cfg = RunConfig(
+        agent="vpm",
+        preset="smoke",
+        train=toy_config("vpm", steps, data_parallel=2),
+        env=EnvConfig(episode_length=10, success_tau=TAU),
+        encoder=None,
+    )
+    with tempfile.TemporaryDirectory() as tmp:
+        run_dir = Path(tmp) / "run"
+        two_processes.launch(run_dir, two_processes.write_config(Path(tmp) / "config.json", cfg))
+        first, second = two_processes.summaries(run_dir)
+    best = float(first["best_eval_success_rate"])
+    return {
+        "figure": f"best in-run success {best:.2f} at {steps} env steps, 2 processes",
+        "checks": {
+            "both processes ran as one run of 2 devices": all(
+                s["devices"] == 2 and s["processes"] == 2 and s["env_steps"] == steps for s in (first, second)
+            ),
+            "the same result in both processes": second["best_eval_success_rate"] == first["best_eval_success_rate"],
+            "best in-run success >= 0.9": best >= 0.9,
+        },
+        "success": best,
+        "env_steps": steps,
     }
 
 
@@ -210,6 +248,7 @@ CHECKS = {
     "toy-vpm": lambda: toy("vpm"),
     "toy-ugru": lambda: toy("ugru"),
     "toy-all-features": toy_all_features,
+    "toy-two-processes": toy_two_processes,
     "expert-1cm": expert_1cm,
     "scene-imitation": scene_imitation,
 }

@@ -1,0 +1,63 @@
+"""A data-parallel run as two processes on localhost (`tests/distributed_worker.py`, one CPU device
+each, joined through `jax.distributed`): the suite's test of its mechanics and the learning check that
+it learns (`benchmarks/learning_checks.py`) start it the same way."""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+from mjx_push import xla
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def worker_env() -> dict:
+    """This environment without its host-device count: each worker asks for one CPU device."""
+    flags = [f for f in os.environ.get("XLA_FLAGS", "").split() if not f.startswith(xla.DEVICE_FLAG)]
+    return {**os.environ, "XLA_FLAGS": " ".join(flags)}
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("localhost", 0))
+        return s.getsockname()[1]
+
+
+def write_config(path: Path, run_config) -> Path:
+    """`run_config` (a RunConfig) as the JSON file both workers read."""
+    from mjx_push.train.presets import config_dict
+
+    path.write_text(json.dumps(config_dict(run_config)))
+    return path
+
+
+def launch(run_dir: Path, config: Path, *extra: str, timeout: float = 900) -> None:
+    """Train `config` (a JSON run configuration) on the toy task in `run_dir` as two processes, with
+    the worker's `extra` options (`--stop-after N`, `--resume`); raises with a failed process's output."""
+    port = _free_port()
+    cmd = [sys.executable, "-m", "tests.distributed_worker", str(port), "{i}", "2", str(run_dir), str(config), "--toy"]
+    procs = [
+        subprocess.Popen(
+            [c.format(i=i) for c in cmd] + list(extra),
+            cwd=ROOT,
+            env=worker_env(),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        for i in range(2)
+    ]
+    outs = [p.communicate(timeout=timeout)[0] for p in procs]
+    for i, (p, out) in enumerate(zip(procs, outs)):
+        if p.returncode != 0:
+            raise RuntimeError(f"process {i} of the two-process run failed:\n{out[-3000:]}")
+
+
+def summaries(run_dir: Path) -> list[dict]:
+    """Each process's summary of its last launch (the worker writes `summary-<process id>.json`)."""
+    return [json.loads((run_dir / f"summary-{i}.json").read_text()) for i in range(2)]
