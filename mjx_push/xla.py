@@ -15,6 +15,10 @@
   `mjx_push.xla.use_cpu_devices()` itself, first. Only the CPU platform is affected.
 
 Either flag is left alone when the user's own XLA_FLAGS already sets it either way.
+
+The fusion-emitter flag is for MJX; programs without it (the learner's updates) compile and run faster
+with the emitters, so where the package set the flag it turns them back on for those programs alone:
+`physics_free_options()` is the `compiler_options` of their `jax.jit`.
 """
 
 import importlib.metadata
@@ -23,6 +27,9 @@ import sys
 from mjx_push.errors import ConfigError
 
 FLAG = "--xla_cpu_use_fusion_emitters"
+# Set beside FLAG when the package added it, so that processes it starts (which inherit XLA_FLAGS with
+# the flag in it) still know the flag was the package's choice and not the user's.
+FLAG_OWNER_ENV = "MJX_PUSH_FUSION_FLAG"
 DEVICE_FLAG = "--xla_force_host_platform_device_count"
 DEVICES_ENV = "MJX_PUSH_CPU_DEVICES"
 MAX_DEVICES = 8
@@ -64,6 +71,20 @@ def apply_fusion_flag() -> None:
     flags = os.environ.get("XLA_FLAGS", "")
     if FLAG not in flags and needs_fusion_flag():
         os.environ["XLA_FLAGS"] = f"{flags} {FLAG}=false".strip()
+        os.environ[FLAG_OWNER_ENV] = "package"
+
+
+def physics_free_options() -> dict | None:
+    """`jax.jit`'s `compiler_options` for a program that steps no MJX physics: the CPU fusion emitters
+    on again where the package (not the user's XLA_FLAGS) turned them off; None elsewhere (another
+    backend, a jaxlib without the flag, the user's own setting)."""
+    if os.environ.get(FLAG_OWNER_ENV) != "package" or f"{FLAG}=false" not in os.environ.get("XLA_FLAGS", ""):
+        return None
+    import jax
+
+    if jax.default_backend() != "cpu":
+        return None
+    return {FLAG.removeprefix("--"): True}
 
 
 def _backend_started() -> bool:

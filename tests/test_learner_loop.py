@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from mjx_push import xla
 from mjx_push.train.config import ReplayConfig
 from mjx_push.train.adapter import EnvAdapter
 from mjx_push.train.loop import Runner, make_train, train as run_train
@@ -173,3 +174,18 @@ def test_selection_keeps_the_best_reward_and_gives_ties_to_the_newer_params():
     assert improved and float(ts.best_eval_success) == pytest.approx(0.2)
     ts, improved = evaluated(ts, 500, -9.0, 0.1)  # same reward, lower success: kept the older
     assert not improved and int(ts.best_env_steps) == 400
+
+
+@pytest.mark.parametrize("devices", [1, 2], ids=["one-device", "data-parallel"])
+def test_the_updates_compile_with_the_physics_free_options(monkeypatch, devices):
+    """The learner's updates (one device, or split over devices) are compiled with
+    mjx_push.xla.physics_free_options and the rollout without: an option XLA does not know, put there,
+    stops the updates' compilation and nothing else."""
+    assert len(jax.devices()) >= devices, "the suite runs with a host device per core (2 on its machines)"
+    monkeypatch.setattr(xla, "physics_free_options", lambda: {"xla_no_such_option_of_this_test": True})
+    cfg = toy_config("vpm", 160, hidden=(16,), batch_size=16, data_parallel=devices)
+    runner = Runner(make_train(cfg, make_toy(success_tau=TAU)))
+    ts = runner.init(jax.random.PRNGKey(0))
+    with pytest.raises(Exception, match="xla_no_such_option_of_this_test") as caught:
+        runner.iteration(ts)
+    assert "rollout" not in "".join(f.name for f in caught.traceback)  # the rollout compiled and ran

@@ -1,10 +1,13 @@
-"""The CPU XLA flags and the command line's compilation cache (no compilation here)."""
+"""The CPU XLA flags and the command line's compilation cache (no compilation here but of a one-line
+function)."""
 
 import os
 import subprocess
 import sys
 
 import jax
+import jax.numpy as jnp
+import numpy as np
 import pytest
 
 from mjx_push import xla
@@ -62,6 +65,28 @@ def test_the_fusion_flag_follows_the_jaxlib_line(monkeypatch):
     for v, want in versions.items():
         monkeypatch.setattr(xla.importlib.metadata, "version", lambda name, v=v: v)
         assert xla.needs_fusion_flag() is want, v
+
+
+def test_programs_without_physics_get_the_fusion_emitters_back_only_where_the_package_took_them(monkeypatch):
+    jax.devices()  # the backend starts with the suite's flags, before this test rewrites them
+    monkeypatch.setenv("XLA_FLAGS", "")
+    monkeypatch.delenv(xla.FLAG_OWNER_ENV, raising=False)
+    xla.apply_fusion_flag()  # the package's flag is marked as its own, and started processes inherit the mark
+    assert (os.environ.get(xla.FLAG_OWNER_ENV) == "package") == xla.needs_fusion_flag()
+    monkeypatch.setenv("XLA_FLAGS", f"{xla.FLAG}=false")
+    monkeypatch.setenv(xla.FLAG_OWNER_ENV, "package")
+    options = xla.physics_free_options()
+    assert options == ({"xla_cpu_use_fusion_emitters": True} if jax.default_backend() == "cpu" else None)
+    # XLA knows the option by that name (it refuses names it does not know), and the results stand.
+    x = jnp.linspace(-3.0, 3.0, 64)
+    f = lambda x: jnp.tanh(x) * jnp.exp(-x * x) + 1.0  # noqa: E731
+    np.testing.assert_allclose(jax.jit(f, compiler_options=options)(x), jax.jit(f)(x), rtol=1e-6, atol=1e-6)
+    # A setting of the user's own, either way, holds for every program.
+    monkeypatch.delenv(xla.FLAG_OWNER_ENV)
+    assert xla.physics_free_options() is None
+    monkeypatch.setenv(xla.FLAG_OWNER_ENV, "package")
+    monkeypatch.setenv("XLA_FLAGS", f"{xla.FLAG}=true")
+    assert xla.physics_free_options() is None
 
 
 @pytest.fixture

@@ -28,6 +28,7 @@ import numpy as np
 from jax.flatten_util import ravel_pytree
 from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 
+from mjx_push import xla
 from mjx_push.errors import ConfigError
 
 AXIS = "data"
@@ -134,7 +135,11 @@ class Sharded:
             ts, metrics = trainer.learn(_local(ts), episodes, key)
             return _global(ts), metrics
 
-        self._learn = jax.jit(smap(learn, (self.specs, P(AXIS), P()), (self.specs, P())), donate_argnums=0)
+        self._learn = jax.jit(
+            smap(learn, (self.specs, P(AXIS), P()), (self.specs, P())),
+            donate_argnums=0,
+            compiler_options=xla.physics_free_options(),
+        )
         self._select = jax.jit(
             trainer.select, donate_argnums=0, out_shardings=(self.state_shardings, NamedSharding(mesh, P()))
         )

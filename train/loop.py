@@ -32,6 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mjx_push import xla
 from mjx_push.train import data_parallel, normalizer, replay
 from mjx_push.train.adapter import EnvAdapter
 from mjx_push.train.config import TrainConfig
@@ -324,7 +325,8 @@ class Runner:
             )
             return
         self.init = trainer.init
-        self.learn = jax.jit(trainer.learn, donate_argnums=0)
+        # The updates step no physics: compiled with XLA's CPU fusion emitters (mjx_push.xla).
+        self.learn = jax.jit(trainer.learn, donate_argnums=0, compiler_options=xla.physics_free_options())
         self.select = jax.jit(trainer.select, donate_argnums=0)
         rollout = jax.jit(trainer.rollout)
         if trainer.rollout_mesh is None:
