@@ -100,19 +100,11 @@ def toy_all_features() -> dict:
 def toy_two_processes() -> dict:
     import tempfile
 
-    from mjx_push.env import EnvConfig
-    from mjx_push.train.config import RunConfig
     from tests import two_processes
-    from tests.toy import TAU, toy_config
+    from tests.toy import toy_config
 
     steps = 1600
-    cfg = RunConfig(
-        agent="vpm",
-        preset="smoke",
-        train=toy_config("vpm", steps, data_parallel=2),
-        env=EnvConfig(episode_length=10, success_tau=TAU),
-        encoder=None,
-    )
+    cfg = two_processes.toy_run(toy_config("vpm", steps, data_parallel=2))
     with tempfile.TemporaryDirectory() as tmp:
         run_dir = Path(tmp) / "run"
         two_processes.launch(run_dir, two_processes.write_config(Path(tmp) / "config.json", cfg))

@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 from jax.sharding import Mesh, PartitionSpec as P
 
-from mjx_push.env import EnvConfig
 from mjx_push.errors import ConfigError
 from tests.test_learner_sac import KEY
 from tests import two_processes
@@ -19,7 +18,6 @@ from tests.toy import TAU, make_toy, toy_config
 from mjx_push.train import data_parallel
 from mjx_push.train.config import LoopConfig
 from mjx_push.train.loop import Runner, make_train
-from mjx_push.train.config import RunConfig
 from mjx_push.train.networks import make_networks
 from mjx_push.train.sac import make_update
 
@@ -146,10 +144,7 @@ def test_two_processes_train_one_run_and_resume_it(tmp_path):
     policies. (That such a run learns the task as well as one device is `toy-two-processes` in
     benchmarks/learning_checks.py.)"""
     train = toy_config("vpm", 640, data_parallel=2, warmup_env_steps=160, eval_every_env_steps=320)
-    cfg = RunConfig(
-        agent="vpm", preset="smoke", train=train, env=EnvConfig(episode_length=10, success_tau=TAU), encoder=None
-    )
-    config = two_processes.write_config(tmp_path / "config-in.json", cfg)
+    config = two_processes.write_config(tmp_path / "config-in.json", two_processes.toy_run(train))
     run_dir = tmp_path / "run"
     two_processes.launch(run_dir, config, "--stop-after", "6")
     assert all(s["stopped_at_env_steps"] == 6 * 80 for s in two_processes.summaries(run_dir))

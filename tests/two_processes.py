@@ -28,6 +28,17 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+def toy_run(train):
+    """A run configuration of the toy task (tests/toy.py) with the learner `train` (a TrainConfig)."""
+    from mjx_push.env import EnvConfig
+    from mjx_push.train.config import RunConfig
+    from tests.toy import TAU
+
+    return RunConfig(
+        agent="vpm", preset="smoke", train=train, env=EnvConfig(episode_length=10, success_tau=TAU), encoder=None
+    )
+
+
 def write_config(path: Path, run_config) -> Path:
     """`run_config` (a RunConfig) as the JSON file both workers read."""
     from mjx_push.train.presets import config_dict
