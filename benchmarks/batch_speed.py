@@ -2,7 +2,8 @@
 rollout, then the learner's updates), at this checkout or at earlier commits, one after the other.
 
     python -m benchmarks.batch_speed [--agent egru] [--preset cpu-long] [--batches 6]
-                                     [--commits fa0b29b HEAD] [--out outputs/bench_batch_speed.json]
+                                     [--data-parallel 1] [--commits fa0b29b HEAD]
+                                     [--out outputs/bench_batch_speed.json]
 
 Each row: the first batch (compilation included, no compilation cache) and the medians over the
 batches that learn (after the warm-up) of the batch, its rollout and its updates. A commit other
@@ -24,9 +25,12 @@ import time
 from pathlib import Path
 
 
-def measure(agent: str, preset: str, batches: int) -> dict:
+def measure(agent: str, preset: str, batches: int, data_parallel: int = 1) -> dict:
     """Run `batches` training batches from a fresh state in this process (whatever `mjx_push` this
-    interpreter imports); per batch its env steps, rollout_s, learn_s and wall_s."""
+    interpreter imports), the preset's run split over `data_parallel` devices; per batch its env
+    steps, rollout_s, learn_s and wall_s."""
+    import dataclasses
+
     from mjx_push import xla
 
     xla.use_cpu_devices()
@@ -45,7 +49,13 @@ def measure(agent: str, preset: str, batches: int) -> dict:
         from train.push_task import make_push_adapter  # type: ignore[no-redef]
 
     run = presets.make(agent, preset)
-    runner = Runner(make_train(run.train, make_push_adapter(run.env, enc.load(None), expert_config=run.expert)))
+    if data_parallel != 1:
+        loop = dataclasses.replace(run.train.loop, data_parallel=data_parallel)
+        run = dataclasses.replace(run, train=dataclasses.replace(run.train, loop=loop))
+    # Split over devices, each device steps its own environments (the adapter for one device).
+    one_device = {"max_devices": 1} if data_parallel != 1 else {}
+    adapter = make_push_adapter(run.env, enc.load(None), expert_config=run.expert, **one_device)
+    runner = Runner(make_train(run.train, adapter))
     ts = runner.init(jax.random.PRNGKey(0))
     rows = []
     for _ in range(batches):
@@ -65,7 +75,14 @@ def measure(agent: str, preset: str, batches: int) -> dict:
     commit = subprocess.run(
         ["git", "describe", "--always", "--dirty"], cwd=package, capture_output=True, text=True
     ).stdout.strip()
-    return {"agent": agent, "preset": preset, "package": str(package), "commit": commit, "batches": rows}
+    return {
+        "agent": agent,
+        "preset": preset,
+        "data_parallel": data_parallel,
+        "package": str(package),
+        "commit": commit,
+        "batches": rows,
+    }
 
 
 def summary(label: str, result: dict) -> dict:
@@ -97,7 +114,7 @@ def at_commit(commit: str, args: argparse.Namespace, out: Path) -> dict:
     python = environment(commit, root, tree)
     child_out = root / f"batch_speed-{commit}.json"
     cmd = [str(python), str(Path(__file__).resolve()), "--agent", args.agent, "--preset", args.preset]
-    cmd += ["--batches", str(args.batches), "--child", str(child_out)]
+    cmd += ["--batches", str(args.batches), "--data-parallel", str(args.data_parallel), "--child", str(child_out)]
     subprocess.run(cmd, cwd=tree, check=True, env={**os.environ, "MJX_PUSH_COMPILE_CACHE": "off"})
     return json.loads(child_out.read_text())
 
@@ -107,26 +124,32 @@ def main(argv=None) -> None:
     p.add_argument("--agent", default="egru")
     p.add_argument("--preset", default="cpu-long")
     p.add_argument("--batches", type=int, default=6, help="batches per row, the first (compilation) included")
+    p.add_argument("--data-parallel", type=int, default=1, help="devices the run is split over (loop.data_parallel)")
     p.add_argument("--commits", nargs="+", default=["HEAD"], help="HEAD is this checkout; others run in worktrees")
     p.add_argument("--out", type=Path, default=Path("outputs/bench_batch_speed.json"))
     p.add_argument("--child", type=Path, help=argparse.SUPPRESS)  # one measurement, its JSON at this path
     a = p.parse_args(argv)
     if a.batches < 2:
         p.error(f"--batches must be at least 2 (the first compiles), got {a.batches}")
+    if a.data_parallel < 1:
+        p.error(f"--data-parallel must be at least 1, got {a.data_parallel}")
     if a.child is not None:
-        a.child.write_text(json.dumps(measure(a.agent, a.preset, a.batches)))
+        a.child.write_text(json.dumps(measure(a.agent, a.preset, a.batches, a.data_parallel)))
         return
 
     rows, raw = [], {}
     for commit in a.commits:
-        result = measure(a.agent, a.preset, a.batches) if commit == "HEAD" else at_commit(commit, a, a.out)
+        result = (
+            measure(a.agent, a.preset, a.batches, a.data_parallel) if commit == "HEAD" else at_commit(commit, a, a.out)
+        )
         raw[commit] = result
         rows.append(summary(commit, result))
 
     from rich.console import Console
     from rich.table import Table
 
-    table = Table(title=f"training batches: {a.agent} {a.preset}, median over the batches that learn")
+    title = f"training batches: {a.agent} {a.preset}, {a.data_parallel} device(s), median over the batches that learn"
+    table = Table(title=title)
     for col in ("code", "first batch s", "batch s", "rollout s", "updates s", "batches"):
         table.add_column(col, justify="right")
     for r in rows:

@@ -35,3 +35,9 @@ def test_fewer_than_two_batches_is_refused_naming_the_flag(capsys):
     with pytest.raises(SystemExit):
         main(["--batches", "1"])
     assert "--batches must be at least 2" in capsys.readouterr().err
+
+
+def test_fewer_than_one_device_is_refused_naming_the_flag(capsys):
+    with pytest.raises(SystemExit):
+        main(["--data-parallel", "0"])
+    assert "--data-parallel must be at least 1" in capsys.readouterr().err
