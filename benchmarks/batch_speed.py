@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import statistics
 import subprocess
 import sys
@@ -42,19 +41,22 @@ def measure(agent: str, preset: str, batches: int, data_parallel: int = 1) -> di
     try:
         from mjx_push.train import presets
         from mjx_push.train.loop import Runner, make_train
-        from mjx_push.train.push_task import make_push_adapter
+        from mjx_push.train import push_task
     except ModuleNotFoundError:  # commits before the learner became mjx_push.train
         from train import presets  # type: ignore[no-redef]
         from train.loop import Runner, make_train  # type: ignore[no-redef]
-        from train.push_task import make_push_adapter  # type: ignore[no-redef]
+        from train import push_task  # type: ignore[no-redef]
 
     run = presets.make(agent, preset)
     if data_parallel != 1:
         loop = dataclasses.replace(run.train.loop, data_parallel=data_parallel)
         run = dataclasses.replace(run, train=dataclasses.replace(run.train, loop=loop))
-    # Split over devices, each device steps its own environments (the adapter for one device).
-    one_device = {"max_devices": 1} if data_parallel != 1 else {}
-    adapter = make_push_adapter(run.env, enc.load(None), expert_config=run.expert, **one_device)
+    if hasattr(push_task, "run_adapter"):
+        adapter = push_task.run_adapter(run, enc.load(None))
+    elif data_parallel == 1:  # commits before run_adapter: the one-device run's adapter
+        adapter = push_task.make_push_adapter(run.env, enc.load(None), expert_config=run.expert)
+    else:
+        raise SystemExit("--data-parallel needs a commit with train.push_task.run_adapter")
     runner = Runner(make_train(run.train, adapter))
     ts = runner.init(jax.random.PRNGKey(0))
     rows = []
@@ -67,7 +69,7 @@ def measure(agent: str, preset: str, batches: int, data_parallel: int = 1) -> di
                 "rollout_s": float(m["rollout_s"]),
                 "learn_s": float(m["learn_s"]),
                 "wall_s": time.perf_counter() - t0,
-                "learning": bool(m.get("learning", m["learn_s"] > 1.0)),
+                "learning": bool(m["learning"]),
             }
         )
         print(json.dumps(rows[-1]), flush=True)
@@ -105,7 +107,6 @@ def summary(label: str, result: dict) -> dict:
 
 def at_commit(commit: str, args: argparse.Namespace, out: Path) -> dict:
     """This measurement run by `commit`'s code, in its worktree, with its own interpreter."""
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     from benchmarks.protocol_at_commit import environment, worktree
 
     root = out.parent / "worktrees"
@@ -137,6 +138,9 @@ def main(argv=None) -> None:
         a.child.write_text(json.dumps(measure(a.agent, a.preset, a.batches, a.data_parallel)))
         return
 
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # also when run as a file, not with -m
+    from benchmarks.output import write_json
+
     rows, raw = [], {}
     for commit in a.commits:
         result = (
@@ -162,10 +166,7 @@ def main(argv=None) -> None:
             str(r["learning_batches"]),
         )
     Console().print(table)
-    a.out.parent.mkdir(parents=True, exist_ok=True)
-    machine = {"platform": platform.platform(), "cpus": os.cpu_count()}
-    a.out.write_text(json.dumps({"rows": rows, "runs": raw, "machine": machine}, indent=2) + "\n")
-    print(f"wrote {a.out}")
+    write_json(a.out, {"rows": rows, "runs": raw, "cpus": os.cpu_count()})
 
 
 if __name__ == "__main__":

@@ -56,7 +56,7 @@ def measure(agent: str, preset: str, devices: int, batches: int, rollout: bool) 
     from mjx_push import encoder as enc
     from mjx_push.train import presets
     from mjx_push.train.loop import Runner, make_train
-    from mjx_push.train.push_task import PRIV_DIM, make_push_adapter
+    from mjx_push.train.push_task import PRIV_DIM, run_adapter
 
     run = presets.make(agent, preset)
     cfg = dataclasses.replace(
@@ -64,9 +64,7 @@ def measure(agent: str, preset: str, devices: int, batches: int, rollout: bool) 
     )
     # One device is the default run: the learner on one device, the rollout's environments split over
     # every host device (as `mjx-push train` does); data parallel steps each device's share on it.
-    adapter = make_push_adapter(
-        run.env, enc.load(None), expert_config=run.expert, max_devices=None if devices == 1 else 1
-    )
+    adapter = run_adapter(dataclasses.replace(run, train=cfg), enc.load(None))
     runner = Runner(make_train(cfg, adapter))
     T = run.env.episode_length
     ts = runner.init(jax.random.PRNGKey(0))

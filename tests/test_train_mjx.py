@@ -11,7 +11,7 @@ import pytest
 from mjx_push import encoder as enc
 from tests.helpers import tiny_run_config
 from mjx_push.train.runs import run as run_mod
-from mjx_push.train.push_task import make_push_adapter
+from mjx_push.train.push_task import make_push_adapter, run_adapter
 
 
 def test_adapter_latents_are_the_encoder_of_the_masks(encoder_file):
@@ -112,3 +112,17 @@ def test_batches_after_the_first_compile_nothing_and_evaluate_the_protocols_epis
     want = [episode_objects(spec, cfg.env.objects, g, np.array([i]))[0] for i, g in enumerate(("box", "cylinder"))]
     start = [np.linalg.norm(w.start[0, :2] - w.goal[0, :2]) for w in want]
     np.testing.assert_allclose(ev["episode_start_distance"], start, rtol=1e-5)
+
+
+def test_a_data_parallel_runs_adapter_keeps_each_batch_on_one_device():
+    """`run_adapter`: a one-device run splits a batch over the host devices, a data-parallel run keeps
+    each device's share whole on it (what `make_train` asks of it)."""
+    import dataclasses
+
+    if len(jax.devices()) < 2:
+        pytest.skip("one device: MJX_PUSH_CPU_DEVICES=1 or a one-core machine, nothing to split")
+    cfg = tiny_run_config("vpm", None)
+    split = dataclasses.replace(cfg.train.loop, data_parallel=2)
+    per_device = dataclasses.replace(cfg, train=dataclasses.replace(cfg.train, loop=split))
+    assert run_adapter(cfg, None).mesh(4) is not None
+    assert run_adapter(per_device, None).mesh(4) is None

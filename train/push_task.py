@@ -93,6 +93,15 @@ EVAL_SHAPE = {
 }
 
 
+def run_adapter(run, encoder_params, substep_chunk: int = DEFAULT_SUBSTEP_CHUNK) -> EnvAdapter:
+    """The pushing scene's adapter for a run configuration `run` (a RunConfig): its environment and
+    expert. A data-parallel run (`train.loop.data_parallel` > 1) keeps each batch on one device, since
+    every device steps its own share of the environments (`make_train` refuses a batch split over
+    devices there); otherwise a batch is split over the host devices."""
+    max_devices = 1 if run.train.loop.data_parallel > 1 else None
+    return make_push_adapter(run.env, encoder_params, substep_chunk, run.expert, max_devices=max_devices)
+
+
 def make_push_adapter(
     env_config: EnvConfig,
     encoder_params,

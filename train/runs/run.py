@@ -272,12 +272,9 @@ def _run_locked(
     encoder_params = enc.load(cfg.encoder and Path(cfg.encoder))
     loop = cfg.train.loop
     if adapter is None:
-        from mjx_push.train.push_task import DEFAULT_SUBSTEP_CHUNK, make_push_adapter
+        from mjx_push.train.push_task import DEFAULT_SUBSTEP_CHUNK, run_adapter
 
-        chunk = DEFAULT_SUBSTEP_CHUNK if substep_chunk is None else substep_chunk
-        # Data parallel: each device steps its own environments (no split of a batch over devices).
-        max_devices = 1 if loop.data_parallel > 1 else None
-        adapter = make_push_adapter(cfg.env, encoder_params, chunk, cfg.expert, max_devices=max_devices)
+        adapter = run_adapter(cfg, encoder_params, DEFAULT_SUBSTEP_CHUNK if substep_chunk is None else substep_chunk)
     # The learner reads the task's facts from the adapter; the run's record (config.json) from env.
     T = cfg.env.episode_length
     if (adapter.episode_len, adapter.success_tau) != (T, cfg.env.success_tau):
