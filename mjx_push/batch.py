@@ -120,8 +120,9 @@ class PushBatch:
         ones instead: `episodes["keys"]` [N, 2] and `episodes["params"]` (ObjectParams [N]), in the
         batch's order (box group first), as `PushEnv.reset_with` takes them (evaluation episodes
         through the same compiled reset as training's; they run without the environment's
-        perturbations, as the evaluation protocol does)."""
-        keys = jax.random.split(key, self.num_envs)
+        perturbations, as the evaluation protocol does). `key` may also be the environments' own keys
+        [N, 2], those `jax.random.split(key, N)` would give them (a share of a larger batch)."""
+        keys = key if jnp.ndim(key) == 2 else jax.random.split(key, self.num_envs)
         if episodes is None:
             return BatchState(tuple(self._run(env.reset, k) for env, k in zip(self.envs, self._split(keys))))
         use = jnp.broadcast_to(jnp.asarray(episodes["use"]), (self.num_envs,))

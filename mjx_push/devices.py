@@ -22,7 +22,7 @@ from mjx_push.xla import jaxlib_line
 AXIS = "envs"
 
 
-def _shard_map_compiles() -> bool:
+def shard_map_compiles() -> bool:
     """False on the jaxlib line whose CPU compiler crashes on the environments' shard_map (0.11)."""
     line = jaxlib_line()
     return line is None or line < (0, 11) or jax.default_backend() != "cpu"
@@ -48,7 +48,7 @@ def shard(fn, mesh: jax.sharding.Mesh | None):
     spec = PartitionSpec(AXIS)
     sharding = NamedSharding(mesh, spec)
     constrain = lambda tree: jax.tree.map(lambda x: jax.lax.with_sharding_constraint(x, sharding), tree)  # noqa: E731
-    if not _shard_map_compiles():
+    if not shard_map_compiles():
         return lambda *args: constrain(fn(*constrain(args)))
     inner = jax.shard_map(fn, mesh=mesh, in_specs=spec, out_specs=spec, check_vma=False)
 

@@ -126,3 +126,50 @@ def test_a_data_parallel_runs_adapter_keeps_each_batch_on_one_device():
     per_device = dataclasses.replace(cfg, train=dataclasses.replace(cfg.train, loop=split))
     assert run_adapter(cfg, None).mesh(4) is not None
     assert run_adapter(per_device, None).mesh(4) is None
+
+
+def test_a_batch_split_over_the_devices_by_whole_episodes_runs_one_devices_episodes(encoder_file):
+    """A one-device run on several host devices splits each batch by whole episodes (each device runs
+    its share's episodes as a batch of its own, `make_split_collect`): its training episodes (expert
+    and agent alike) and its evaluation episodes are those of the same batch run on one device, in the
+    batch's order. Four environments: two cuboids and two cylinders, one of each per device."""
+    import dataclasses
+
+    from mjx_push.train.loop import Runner, make_train
+    from mjx_push.train.rollout import make_collect
+
+    if len(jax.devices()) < 2:
+        pytest.skip("one device: MJX_PUSH_CPU_DEVICES=1 or a one-core machine, nothing to split")
+    cfg = tiny_run_config("egru", encoder_file)
+    loop = dataclasses.replace(cfg.train.loop, num_envs=4, eval_episodes=4)
+    cfg = dataclasses.replace(cfg, train=dataclasses.replace(cfg.train, loop=loop))
+    params = enc.load(encoder_file)
+    runner = Runner(make_train(cfg.train, make_push_adapter(cfg.env, params, expert_config=cfg.expert)))
+    assert runner.trainer.rollout_mesh.size == 2
+    state = runner.init(jax.random.PRNGKey(1))
+    one = make_push_adapter(cfg.env, params, expert_config=cfg.expert, max_devices=1)
+    collect = make_collect(cfg.train, one, runner.trainer.networks)
+    on_one = jax.jit(lambda p, k, e, ep: collect(p, k, 4, jnp.asarray(False), jnp.asarray(False), e, ep))
+    expert = jnp.asarray([True, False, False, True])
+    chunk = runner.eval_chunks()[0]
+    for use in (False, True):  # training's fresh episodes, then the protocol's
+        ep = {**chunk, "use": np.asarray(use)}
+        split, split_stats = runner.rollout(state.sac.actor_params, jax.random.PRNGKey(5), False, False, expert, ep)
+        whole, whole_stats = on_one(state.sac.actor_params, jax.random.PRNGKey(5), expert, ep)
+        assert split.keys() == whole.keys() and split_stats.keys() == whole_stats.keys()
+        for k in whole:
+            np.testing.assert_allclose(np.asarray(split[k]), np.asarray(whole[k]), atol=1e-6, err_msg=k)
+        for k in whole_stats:
+            np.testing.assert_allclose(np.asarray(split_stats[k]), np.asarray(whole_stats[k]), atol=1e-6, err_msg=k)
+        np.testing.assert_array_equal(split["demo"], expert)
+    assert not np.allclose(split["goal_xy"][0], split["goal_xy"][2])  # different episodes, not one repeated
+
+
+def test_the_device_layout_gives_each_device_a_slice_of_every_group():
+    from mjx_push.train.rollout import device_layout
+
+    assert device_layout((4, 4), 2).tolist() == [0, 1, 4, 5, 2, 3, 6, 7]
+    assert device_layout((6,), 3).tolist() == [0, 1, 2, 3, 4, 5]
+    assert device_layout((2, 2), 1).tolist() == [0, 1, 2, 3]
+    with pytest.raises(ValueError, match=r"groups \(3, 3\) do not split evenly over 2 devices"):
+        device_layout((3, 3), 2)

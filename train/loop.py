@@ -32,14 +32,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjx_push import xla
+from mjx_push import devices, xla
 from mjx_push.train import data_parallel, normalizer, replay
 from mjx_push.train.adapter import EnvAdapter
 from mjx_push.train.config import TrainConfig
 from mjx_push.train.networks import Networks, make_networks
 from mjx_push.train.normalizer import RunningStats
 from mjx_push.train.replay import ReplayBuffer
-from mjx_push.train.rollout import episode_means, make_collect
+from mjx_push.train.rollout import episode_means, make_collect, make_split_collect
 from mjx_push.train.sac import SACState, init_state, make_update
 from mjx_push.errors import ConfigError
 
@@ -175,7 +175,12 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
             anchor_actor_params=jax.tree.map(jnp.copy, sac_state.actor_params),
         )
 
-    collect = make_collect(config, adapter, nets)
+    rollout_mesh = adapter.mesh(N) if adapter.mesh and D == 1 else None
+    if rollout_mesh is not None and adapter.one_device is not None and devices.shard_map_compiles():
+        # Each device runs its share of the batch's episodes whole: no joining of devices every tick.
+        collect = make_split_collect(config, adapter.one_device(), nets, rollout_mesh, adapter.groups(N))
+    else:
+        collect = make_collect(config, adapter, nets)
 
     bc = sac_cfg.bc_weight > 0
     anchored = sac_cfg.anchor_weight > 0
@@ -281,7 +286,6 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
         )
         return ts, {**{f"eval/{k}": v for k, v in stats.items()}, "eval/improved": better}
 
-    rollout_mesh = adapter.mesh(N) if adapter.mesh and D == 1 else None
     if D > 1 and adapter.mesh and adapter.mesh(N_dev) is not None:
         raise ConfigError(
             "a data-parallel run steps each device's environments on that device: build the adapter for one device"

@@ -198,6 +198,11 @@ def make_push_adapter(
         priv_dim=PRIV_DIM,
         expert=expert,
         mesh=lambda n: batch(n).mesh,
+        one_device=(
+            None
+            if max_devices == 1
+            else lambda: make_push_adapter(env_config, encoder_params, substep_chunk, expert_config, max_devices=1)
+        ),
         groups=lambda n: batch(n).counts,
         eval_episodes=eval_episodes,
     )

@@ -14,8 +14,11 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
+from jax.sharding import PartitionSpec as P
 
-from mjx_push import task_rules
+from mjx_push import devices, task_rules
+from mjx_push.errors import ConfigError
 from mjx_push.train import replay
 from mjx_push.train.adapter import EnvAdapter, select_envs
 from mjx_push.train.config import TrainConfig
@@ -63,8 +66,8 @@ def episode_means(stats: dict, n: int | None = None) -> dict:
     }
 
 
-def make_collect(config: TrainConfig, adapter: EnvAdapter, nets: Networks):
-    """``collect`` for ``config``'s learner on ``adapter`` (see the module's docstring)."""
+def make_run_envs(config: TrainConfig, adapter: EnvAdapter, nets: Networks):
+    """``run_envs``, the episodes of a batch's environments (``make_collect`` and ``make_split_collect``)."""
     T = adapter.episode_len  # the task's
     demo_cfg = config.demo
     stored_priv_dim = adapter.priv_dim if config.agent.critic_obs == "privileged" else 0
@@ -97,37 +100,40 @@ def make_collect(config: TrainConfig, adapter: EnvAdapter, nets: Networks):
                 record["expert_action"] = expert
         return record, carry
 
-    def step_keys(step_key: jax.Array, num_envs: int) -> jax.Array:
-        """[N, 2]: environment i's key for the step whose key is ``step_key``."""
-        return jax.vmap(lambda i: jax.random.fold_in(step_key, i))(jnp.arange(num_envs))
+    def step_keys(step_key: jax.Array, env_ids: jax.Array) -> jax.Array:
+        """[n, 2]: each environment's key for the step whose key is ``step_key`` (by its index in the batch)."""
+        return jax.vmap(lambda i: jax.random.fold_in(step_key, i))(env_ids)
 
-    def lockstep(actor_params, env_state, obs0, info, ks, num_envs, random_actions, deterministic, expert_envs):
+    def lockstep(actor_params, env_state, obs0, info, ks, env_ids, random_actions, deterministic, expert_envs):
+        n = env_ids.shape[0]
+
         def body(c, k):
             env_state, obs, carry, bad = c
             record, carry = act(
-                actor_params, carry, obs, info, step_keys(k, num_envs), random_actions, deterministic, expert_envs
+                actor_params, carry, obs, info, step_keys(k, env_ids), random_actions, deterministic, expert_envs
             )
             env_state, obs, invalid = adapter.step(env_state, record["action"])
             return (env_state, obs, carry, bad | invalid), (obs, record)
 
-        init_c = (env_state, obs0, nets.init_carry(num_envs), jnp.zeros((num_envs,), bool))
+        init_c = (env_state, obs0, nets.init_carry(n), jnp.zeros((n,), bool))
         (_, _, _, bad), (obs_seq, records) = jax.lax.scan(body, init_c, ks)
         env_major = lambda tree: jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), tree)  # noqa: E731
         return env_major(obs_seq), env_major(records), bad
 
-    def scheduled(actor_params, env_state, obs0, info, ks, num_envs, random_actions, deterministic, expert_envs):
+    def scheduled(actor_params, env_state, obs0, info, ks, env_ids, random_actions, deterministic, expert_envs):
         """Every environment runs its own T steps: each tick advances all by ``chunk`` substeps, then
         those whose step is spent finish it, record it and begin their next one."""
         sch = adapter.scheduler
-        idx = jnp.arange(num_envs)
-        keys_at = lambda t: jax.vmap(jax.random.fold_in)(ks[jnp.minimum(t, T - 1)], idx)  # noqa: E731
-        t0 = jnp.zeros((num_envs,), jnp.int32)
+        n = env_ids.shape[0]
+        idx = jnp.arange(n)
+        keys_at = lambda t: jax.vmap(jax.random.fold_in)(ks[jnp.minimum(t, T - 1)], env_ids)  # noqa: E731
+        t0 = jnp.zeros((n,), jnp.int32)
         record, carry = act(
-            actor_params, nets.init_carry(num_envs), obs0, info, keys_at(t0), random_actions, deterministic, expert_envs
+            actor_params, nets.init_carry(n), obs0, info, keys_at(t0), random_actions, deterministic, expert_envs
         )
-        env_state = sch.begin(env_state, record["action"], jnp.ones((num_envs,), bool))
-        obs_buf = jax.tree.map(lambda x: jnp.zeros((num_envs, T) + x.shape[1:], x.dtype), obs0)
-        rec_buf = jax.tree.map(lambda x: jnp.zeros((num_envs, T) + x.shape[1:], x.dtype).at[:, 0].set(x), record)
+        env_state = sch.begin(env_state, record["action"], jnp.ones((n,), bool))
+        obs_buf = jax.tree.map(lambda x: jnp.zeros((n, T) + x.shape[1:], x.dtype), obs0)
+        rec_buf = jax.tree.map(lambda x: jnp.zeros((n, T) + x.shape[1:], x.dtype).at[:, 0].set(x), record)
 
         def put(buf, slot, rows, mask):  # buf[i, slot[i]] = rows[i] where mask[i]
             return buf.at[idx, slot].set(select_envs(mask, rows, buf[idx, slot]))
@@ -155,32 +161,23 @@ def make_collect(config: TrainConfig, adapter: EnvAdapter, nets: Networks):
             rec_buf = jax.tree.map(lambda b, r: put(b, jnp.minimum(t, T - 1), r, more), rec_buf, record)
             return env_state, t, carry, obs_buf, rec_buf, bad
 
-        init_c = (env_state, t0, carry, obs_buf, rec_buf, jnp.zeros((num_envs,), bool))
+        init_c = (env_state, t0, carry, obs_buf, rec_buf, jnp.zeros((n,), bool))
         _, _, _, obs_buf, rec_buf, bad = jax.lax.while_loop(lambda c: jnp.any(c[1] < T), body, init_c)
         return obs_buf, rec_buf, bad
 
-    def collect(actor_params, key, num_envs: int, random_actions, deterministic, expert_envs, episodes=None):
-        """One whole episode in ``num_envs`` envs -> (episode records [num_envs, ...], stats). Step t
-        of environment i draws its randomness from fold_in(key_t, i), so an episode does not depend on
-        how the environments were scheduled. ``episodes`` (``adapter.eval_episodes``) starts the
-        protocol's episodes instead of freshly drawn ones where its ``use`` flag is True."""
-        k_reset, k_roll = jax.random.split(key)
+    def run_envs(actor_params, reset_keys, ks, env_ids, random_actions, deterministic, expert_envs, episodes=None):
+        """The episodes (records, no statistics) of the environments ``env_ids`` [n] of a batch, run as
+        a batch of n: their reset keys [n, 2], the batch's step keys ``ks`` [T, 2], the flags, their
+        ``expert_envs`` [n] and their share of ``episodes``. Step t of environment i draws from
+        fold_in(ks[t], i) whichever batch it runs in, so a share gives that share's episodes."""
+        n = env_ids.shape[0]
         if episodes is None:
-            env_state, obs0, info = adapter.reset(k_reset, num_envs)
+            env_state, obs0, info = adapter.reset(reset_keys, n)
         else:
-            env_state, obs0, info = adapter.reset(k_reset, num_envs, episodes)
+            env_state, obs0, info = adapter.reset(reset_keys, n, episodes)
         run = scheduled if adapter.scheduler is not None else lockstep
-        expert_envs = jnp.broadcast_to(expert_envs, (num_envs,))
         obs_seq, records, bad = run(
-            actor_params,
-            env_state,
-            obs0,
-            info,
-            jax.random.split(k_roll, T),
-            num_envs,
-            random_actions,
-            deterministic,
-            expert_envs,
+            actor_params, env_state, obs0, info, ks, env_ids, random_actions, deterministic, expert_envs
         )
 
         def with_reset(name):  # [N, T+1, .]: the reset observation first, then the T step observations
@@ -200,6 +197,84 @@ def make_collect(config: TrainConfig, adapter: EnvAdapter, nets: Networks):
             episodes["priv"] = with_reset("priv")
         if "expert_action" in records:
             episodes["expert_action"] = records["expert_action"]
-        return episodes, episode_stats(episodes, adapter.success_tau)
+        return episodes
+
+    return run_envs
+
+
+def make_collect(config: TrainConfig, adapter: EnvAdapter, nets: Networks):
+    """``collect`` for ``config``'s learner on ``adapter`` (see the module's docstring)."""
+    run_envs = make_run_envs(config, adapter, nets)
+    T = adapter.episode_len
+
+    def collect(actor_params, key, num_envs: int, random_actions, deterministic, expert_envs, episodes=None):
+        """One whole episode in ``num_envs`` envs -> (episode records [num_envs, ...], stats). Step t
+        of environment i draws its randomness from fold_in(key_t, i), so an episode does not depend on
+        how the environments were scheduled. ``episodes`` (``adapter.eval_episodes``) starts the
+        protocol's episodes instead of freshly drawn ones where its ``use`` flag is True."""
+        k_reset, k_roll = jax.random.split(key)
+        expert_envs = jnp.broadcast_to(expert_envs, (num_envs,))
+        eps = run_envs(
+            actor_params,
+            k_reset,
+            jax.random.split(k_roll, T),
+            jnp.arange(num_envs),
+            random_actions,
+            deterministic,
+            expert_envs,
+            episodes,
+        )
+        return eps, episode_stats(eps, adapter.success_tau)
+
+    return collect
+
+
+def device_layout(groups: tuple[int, ...], num_devices: int) -> np.ndarray:
+    """The batch's environments in the order ``make_split_collect`` hands them to the devices: device d
+    takes the d-th slice of every group, so each device's share is laid out like a batch of its own
+    (its groups in the same order, each ``1 / num_devices`` of the size)."""
+    if any(g % num_devices for g in groups):
+        raise ConfigError(f"groups {groups} do not split evenly over {num_devices} devices")
+    starts = np.cumsum((0,) + tuple(groups))[:-1]
+    return np.concatenate(
+        [
+            start + d * (g // num_devices) + np.arange(g // num_devices)
+            for d in range(num_devices)
+            for start, g in zip(starts, groups)
+        ]
+    )
+
+
+def make_split_collect(config: TrainConfig, one_device: EnvAdapter, nets: Networks, mesh, groups: tuple[int, ...]):
+    """``collect`` (same arguments and results, the same episodes to float rounding) with a batch's
+    environments split over ``mesh``'s devices (a 1-D mesh over axis ``mjx_push.devices.AXIS``), each
+    device running its share's whole episodes as a batch of its own on ``one_device`` (the
+    environment with every batch kept on one device; its ``reset`` takes per-environment keys).
+    Splitting only the physics joins the devices at every tick of the rollout (which environments'
+    steps ended, and the encoder and actor for them); a device running whole episodes waits for no
+    other until its episodes end. ``groups`` is the batch's layout (``adapter.groups``)."""
+    run_envs = make_run_envs(config, one_device, nets)
+    T, D = one_device.episode_len, mesh.size
+    order = device_layout(tuple(groups), D)
+    back = np.argsort(order)
+    env = P(devices.AXIS)
+
+    def collect(actor_params, key, num_envs: int, random_actions, deterministic, expert_envs, episodes=None):
+        if num_envs != len(order):
+            raise ConfigError(f"this rollout is laid out for {len(order)} environments, got {num_envs}")
+        k_reset, k_roll = jax.random.split(key)
+        # The keys a one-device batch would give each environment (PushBatch.reset splits its key so).
+        reset_keys = jax.random.split(k_reset, num_envs)[order]
+        expert_envs = jnp.broadcast_to(expert_envs, (num_envs,))[order]
+        args = (actor_params, reset_keys, jax.random.split(k_roll, T), jnp.asarray(order))
+        args += (random_actions, deterministic, expert_envs)
+        specs = (P(), env, P(), env, P(), P(), env)
+        if episodes is not None:  # the evaluation episodes' fields per environment, their flag for all
+            args += ({k: v if k == "use" else jax.tree.map(lambda x: x[order], v) for k, v in episodes.items()},)
+            specs += ({k: P() if k == "use" else env for k in episodes},)
+        run = jax.shard_map(run_envs, mesh=mesh, in_specs=specs, out_specs=env, check_vma=False)
+        eps = run(*args)
+        eps = jax.tree.map(lambda x: x[back], eps)
+        return eps, episode_stats(eps, one_device.success_tau)
 
     return collect
