@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import platform
+import subprocess
 from pathlib import Path
 
 
@@ -13,8 +14,23 @@ def machine() -> dict:
     return {"platform": platform.platform(), "backend": jax.default_backend(), "jax": jax.__version__}
 
 
+def checkout() -> dict | None:
+    """The code that ran: this checkout's commit and whether its tracked files differ from it (None
+    outside a git checkout), so a row labelled HEAD can be traced to a commit."""
+    root = Path(__file__).resolve().parents[1]
+    git = lambda *args: subprocess.run(["git", *args], cwd=root, capture_output=True, text=True)  # noqa: E731
+    head = git("rev-parse", "--short", "HEAD")
+    if head.returncode != 0:
+        return None
+    return {
+        "commit": head.stdout.strip(),
+        "modified": bool(git("status", "--porcelain", "--untracked-files=no").stdout),
+    }
+
+
 def write_json(path: Path, payload: dict) -> None:
-    """`payload` with the machine's record, as indented JSON at `path` (folders made), and say where."""
+    """`payload` with the machine's record and the checkout's commit, as indented JSON at `path`
+    (folders made), and say where."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps({**payload, "machine": machine()}, indent=2) + "\n")
+    path.write_text(json.dumps({**payload, "machine": machine(), "checkout": checkout()}, indent=2) + "\n")
     print(f"wrote {path}")

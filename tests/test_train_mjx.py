@@ -145,7 +145,7 @@ def test_a_batch_split_over_the_devices_by_whole_episodes_runs_one_devices_episo
     cfg = dataclasses.replace(cfg, train=dataclasses.replace(cfg.train, loop=loop))
     params = enc.load(encoder_file)
     runner = Runner(make_train(cfg.train, make_push_adapter(cfg.env, params, expert_config=cfg.expert)))
-    assert runner.trainer.rollout_mesh.size == 2
+    assert runner.trainer.rollout_mesh.size == 2 and runner.trainer.rollout_split == "episodes"
     state = runner.init(jax.random.PRNGKey(1))
     one = make_push_adapter(cfg.env, params, expert_config=cfg.expert, max_devices=1)
     collect = make_collect(cfg.train, one, runner.trainer.networks)
@@ -173,3 +173,24 @@ def test_the_device_layout_gives_each_device_a_slice_of_every_group():
     assert device_layout((2, 2), 1).tolist() == [0, 1, 2, 3]
     with pytest.raises(ValueError, match=r"groups \(3, 3\) do not split evenly over 2 devices"):
         device_layout((3, 3), 2)
+
+
+def test_an_adapter_with_a_function_replaced_has_only_its_physics_split():
+    """The whole-episode split runs the push task's own one-device twin, so a copy of the adapter with
+    its step (or reset, scheduler, expert) replaced keeps the physics-only split, which runs the copy's
+    functions (test_nan_in_a_running_environment... relies on it); nothing is compiled here."""
+    import dataclasses
+
+    from mjx_push.train.loop import make_train
+
+    if len(jax.devices()) < 2:
+        pytest.skip("one device: MJX_PUSH_CPU_DEVICES=1 or a one-core machine, nothing to split")
+    cfg = tiny_run_config("vpm", None)
+    cfg = dataclasses.replace(
+        cfg, train=dataclasses.replace(cfg.train, loop=dataclasses.replace(cfg.train.loop, num_envs=4))
+    )
+    adapter = make_push_adapter(cfg.env, None)
+    wrapped = dataclasses.replace(adapter, step=lambda s, a: adapter.step(s, a))
+    assert make_train(cfg.train, adapter).rollout_split == "episodes"
+    assert make_train(cfg.train, wrapped).rollout_split == "physics"
+    assert make_train(cfg.train, make_push_adapter(cfg.env, None, max_devices=1)).rollout_split is None

@@ -93,6 +93,8 @@ class Trainer:
     eval_key: jax.Array
     num_eval_chunks: int
     rollout_mesh: Any = None  # the devices the training rollout's environments are split over
+    # How: "episodes" (each device runs its share's whole episodes) or "physics" (only the substeps).
+    rollout_split: str | None = None
     adapter: EnvAdapter | None = None  # the environment (its expert groups and evaluation episodes)
 
 
@@ -176,11 +178,15 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
         )
 
     rollout_mesh = adapter.mesh(N) if adapter.mesh and D == 1 else None
+    twin = None
     if rollout_mesh is not None and adapter.one_device is not None and devices.shard_map_compiles():
+        twin = adapter.one_device(adapter)
+    if twin is not None:
         # Each device runs its share of the batch's episodes whole: no joining of devices every tick.
-        collect = make_split_collect(config, adapter.one_device(), nets, rollout_mesh, adapter.groups(N))
+        collect = make_split_collect(config, twin, nets, rollout_mesh, adapter.groups(N))
     else:
         collect = make_collect(config, adapter, nets)
+    rollout_split = None if rollout_mesh is None else ("episodes" if twin is not None else "physics")
 
     bc = sac_cfg.bc_weight > 0
     anchored = sac_cfg.anchor_weight > 0
@@ -292,6 +298,7 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
         )
     return Trainer(
         rollout_mesh=rollout_mesh,
+        rollout_split=rollout_split,
         adapter=adapter,
         config=config,
         networks=nets,

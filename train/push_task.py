@@ -189,20 +189,25 @@ def make_push_adapter(
             "index": np.concatenate(index),
         }
 
+    scheduler = SubstepScheduler(begin, advance, ready, finish, substep_chunk) if substep_chunk else None
+
+    def one_device(adapter: EnvAdapter) -> EnvAdapter | None:
+        """This environment with every batch on one device, for `adapter` if it is this one's own
+        environment (a copy with its reset, step, scheduler or expert replaced gets None)."""
+        if (adapter.reset, adapter.step, adapter.scheduler, adapter.expert) != (reset, step, scheduler, expert):
+            return None
+        return make_push_adapter(env_config, encoder_params, substep_chunk, expert_config, max_devices=1)
+
     return EnvAdapter(
         reset=reset,
         step=step,
         success_tau=env_config.success_tau,
         episode_len=env_config.episode_length,
-        scheduler=SubstepScheduler(begin, advance, ready, finish, substep_chunk) if substep_chunk else None,
+        scheduler=scheduler,
         priv_dim=PRIV_DIM,
         expert=expert,
         mesh=lambda n: batch(n).mesh,
-        one_device=(
-            None
-            if max_devices == 1
-            else lambda: make_push_adapter(env_config, encoder_params, substep_chunk, expert_config, max_devices=1)
-        ),
+        one_device=None if max_devices == 1 else one_device,
         groups=lambda n: batch(n).counts,
         eval_episodes=eval_episodes,
     )
