@@ -5,7 +5,8 @@ per-episode statistics training and evaluation report.
 deterministic, expert_envs, episodes=None) -> (episodes, stats)``: the policy acts step by step with
 its carry (uniform random actions during a random warm-up; the scripted expert's where ``expert_envs``),
 in lockstep (``lax.scan`` over ``adapter.step``) or, when the adapter has a ``SubstepScheduler``, each
-environment at its own pace (the same episodes, faster). With stored expert labels (demonstrations)
+environment at its own pace (the same episodes, faster). ``make_split_collect`` gives the same
+``collect`` with a batch split over host devices by whole episodes. With stored expert labels (demonstrations)
 each step's record holds the expert's noise-free action beside the action taken, and it comes out as
 ``episodes["expert_action"]``.
 """
@@ -167,8 +168,9 @@ def make_run_envs(config: TrainConfig, adapter: EnvAdapter, nets: Networks):
 
     def run_envs(actor_params, reset_keys, ks, env_ids, random_actions, deterministic, expert_envs, episodes=None):
         """The episodes (records, no statistics) of the environments ``env_ids`` [n] of a batch, run as
-        a batch of n: their reset keys [n, 2], the batch's step keys ``ks`` [T, 2], the flags, their
-        ``expert_envs`` [n] and their share of ``episodes``. Step t of environment i draws from
+        a batch of n: what ``adapter.reset`` takes (the batch's reset key, or the environments' own
+        keys [n, 2] for a share of a larger batch), the batch's step keys ``ks`` [T, 2], the flags,
+        their ``expert_envs`` [n] and their share of ``episodes``. Step t of environment i draws from
         fold_in(ks[t], i) whichever batch it runs in, so a share gives that share's episodes."""
         n = env_ids.shape[0]
         if episodes is None:
