@@ -98,8 +98,12 @@ class Sim:
         return self.reset_with(jax.random.split(jax.random.PRNGKey(seed), B), stack(params_list))
 
 
-def tiny_run_config(agent: str, encoder_path: str):
-    """A run of 2 environments, 3-step episodes of 10-30 substeps: compilation, not simulation, costs."""
+def tiny_run_config(agent: str, encoder_path: str, num_envs: int = 4):
+    """Two batches of ``num_envs`` environments (the first the warm-up), 3-step episodes of 10-30
+    substeps: compilation, not simulation, costs. Four environments (two cuboids, two cylinders) are
+    the fewest a run splits over 2 host devices by whole episodes, as every one-device CPU run does, so
+    the tiny eGRU run's rollout is the program the split's tests compile (one worker compiles it once:
+    tests/test_tiny_egru_run.py)."""
     import dataclasses
 
     from mjx_push.train import presets
@@ -107,16 +111,17 @@ def tiny_run_config(agent: str, encoder_path: str):
 
     cfg = presets.make(agent, "smoke")
     env = dataclasses.replace(cfg.env, episode_length=3, substeps=(10, 30))
+    batch = 3 * num_envs
     t = dataclasses.replace(
         cfg.train,
         sac=dataclasses.replace(cfg.train.sac, batch_size=4, bc_batch_size=4),
         replay=ReplayConfig(capacity_transitions=60),
         loop=LoopConfig(
-            num_envs=2,
-            total_env_steps=12,
-            warmup_env_steps=6,
+            num_envs=num_envs,
+            total_env_steps=2 * batch,
+            warmup_env_steps=batch,
             utd=0.5,
-            eval_every_env_steps=6,
+            eval_every_env_steps=batch,
             eval_episodes=2,
         ),
     )

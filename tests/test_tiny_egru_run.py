@@ -1,7 +1,9 @@
 """The tiny eGRU run trained end to end on the MJX scene (the session fixture `tiny_egru_run`) and what is
 done with it: what training stored, evaluation on shared seeds, the report, `mjx-push eval` and
-`reproduce` (reuse, cached evaluations, teacher-free forks, CPU evaluation). One file, so one worker
-trains the run: each xdist worker that needs a session fixture computes it for itself."""
+`reproduce` (reuse, cached evaluations, teacher-free forks, CPU evaluation), and the tests that run
+the run's own programs (later batches compile nothing; the rollout split over the host devices runs
+one device's episodes). One file, so one worker trains the run and compiles its programs once: each
+xdist worker that needs a session fixture computes it for itself."""
 
 import mjx_push.train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
 
@@ -9,13 +11,16 @@ import dataclasses
 import json
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from mjx_push import encoder as enc
 from mjx_push.cli import main as cli_main
 from mjx_push.train.comparison import report
 from mjx_push.train.episodes import EvalSpec
 from mjx_push.train.evaluate import evaluator_for
+from mjx_push.train.push_task import make_push_adapter
 from mjx_push.train.runs import policies
 from mjx_push.train.runs.policies import Policy
 from tests.helpers import renderer_or_skip
@@ -24,11 +29,11 @@ from tests.helpers import renderer_or_skip
 def test_egru_trains_on_the_pushing_scene(tiny_egru_run):
     cfg, d, summary, state = tiny_egru_run
     assert cfg.env.objects.mode == "improved"  # eGRU = GRU + improved force sampling
-    # Warm-up ends with the first batch (6 steps), so both batches run 2 * 3 * 0.5 = 3 updates.
-    assert summary["env_steps"] == 12 and summary["updates"] == 6
+    # Warm-up ends with the first batch (12 steps), so both batches run 4 * 3 * 0.5 = 6 updates.
+    assert summary["env_steps"] == 24 and summary["updates"] == 12
     data = jax.device_get(state.buffer.data)
     valid = data["valid"]
-    assert valid.sum() == 4  # two batches of two episodes, none flagged invalid
+    assert valid.sum() == 8  # two batches of four episodes, none flagged invalid
     z = data["z_obj"][valid]  # latents of every step's mask, reset observation included
     assert np.isfinite(z).all() and z.shape[1:] == (4, 6)
     # Different objects give different latents; the goal's latent is the goal mask's.
@@ -36,6 +41,83 @@ def test_egru_trains_on_the_pushing_scene(tiny_egru_run):
     assert np.isfinite(jax.tree.leaves(state.sac.actor_params)[0]).all()
     policy = policies.load_policy(d / "best_policy")
     assert policy.config.agent == "egru"
+
+
+# --- the run's own programs: compiled once, by this worker's fixture, reused here -----------------------
+def test_batches_after_the_first_compile_nothing_and_evaluate_the_protocols_episodes(tiny_egru_run):
+    """The tiny eGRU run's configuration as `run` builds it (so its programs are the fixture's): the
+    environments are split over the host devices, yet the learner and the next rollout reuse the first
+    batch's programs (argument placements that changed per batch once recompiled the rollout), and the
+    in-run evaluation runs the protocol's episodes in their order. Whether an actor learns the expert's
+    pushes on this scene: benchmarks/learning_checks.py (scene-imitation), run by CI."""
+    from mjx_push.train.episodes import EvalSpec, episode_objects
+    from mjx_push.train.loop import Runner, make_train
+    from mjx_push.train.push_task import DEFAULT_SUBSTEP_CHUNK, EVAL_SHAPE
+
+    cfg = tiny_egru_run[0]
+    adapter = make_push_adapter(cfg.env, enc.load(cfg.encoder), DEFAULT_SUBSTEP_CHUNK, cfg.expert)
+    runner = Runner(make_train(cfg.train, adapter))
+    state = runner.init(jax.random.PRNGKey(cfg.train.loop.seed))
+    untrained = jax.tree.map(jnp.copy, state.sac.actor_params)
+    compiles = []  # programs compiled (or loaded from the cache) after the first batch
+
+    def on_event(event, secs, **kwargs):
+        if ("backend_compile" in event and secs > 0.5) or "cache_retrieval" in event:
+            compiles.append((event, round(secs, 2)))
+
+    T = cfg.env.episode_length
+    history = []
+    for i in range(cfg.train.loop.num_iterations(T)):
+        if i == 1:
+            jax.monitoring.register_event_duration_secs_listener(on_event)
+        state, m = runner.iteration(state)
+        history.append(m)
+    jax.monitoring.unregister_event_duration_listener(on_event)
+    assert len(history) == 2 and bool(history[-1]["learning"])  # the second batch ran updates
+    assert runner.trainer.rollout_split == ("episodes" if len(jax.devices()) > 1 else None)
+    assert compiles == [], compiles
+
+    ev = runner.evaluate(untrained)
+    loop = cfg.train.loop
+    spec = EvalSpec(setting=loop.eval_setting, shape=EVAL_SHAPE[cfg.env.objects.shape], seed=loop.eval_seed)
+    assert cfg.env.objects.shape == "any" and loop.eval_episodes == 2  # cuboid episode 0, cylinder episode 1
+    want = [episode_objects(spec, cfg.env.objects, g, np.array([i]))[0] for i, g in enumerate(("box", "cylinder"))]
+    start = [np.linalg.norm(w.start[0, :2] - w.goal[0, :2]) for w in want]
+    np.testing.assert_allclose(ev["episode_start_distance"], start, rtol=1e-5)
+
+
+def test_a_batch_split_over_the_devices_by_whole_episodes_runs_one_devices_episodes(tiny_egru_run):
+    """A one-device run on several host devices splits each batch by whole episodes (each device runs
+    its share's episodes as a batch of its own, `make_split_collect`): its training episodes (expert
+    and agent alike) and its evaluation episodes are those of the same batch run on one device, in the
+    batch's order. Four environments: two cuboids and two cylinders, one of each per device."""
+    from mjx_push.train.loop import Runner, make_train
+    from mjx_push.train.rollout import make_collect
+
+    if len(jax.devices()) < 2:
+        pytest.skip("one device: MJX_PUSH_CPU_DEVICES=1 or a one-core machine, nothing to split")
+    cfg = tiny_egru_run[0]  # its split rollout is the run's program
+    assert cfg.train.loop.num_envs == 4
+    params = enc.load(cfg.encoder)
+    runner = Runner(make_train(cfg.train, make_push_adapter(cfg.env, params, expert_config=cfg.expert)))
+    assert runner.trainer.rollout_mesh.size == 2 and runner.trainer.rollout_split == "episodes"
+    state = runner.init(jax.random.PRNGKey(1))
+    one = make_push_adapter(cfg.env, params, expert_config=cfg.expert, max_devices=1)
+    collect = make_collect(cfg.train, one, runner.trainer.networks)
+    on_one = jax.jit(lambda p, k, e, ep: collect(p, k, 4, jnp.asarray(False), jnp.asarray(False), e, ep))
+    expert = jnp.asarray([True, False, False, True])
+    chunk = runner.eval_chunks()[0]
+    for use in (False, True):  # training's fresh episodes, then the protocol's
+        ep = {**chunk, "use": np.asarray(use)}
+        split, split_stats = runner.rollout(state.sac.actor_params, jax.random.PRNGKey(5), False, False, expert, ep)
+        whole, whole_stats = on_one(state.sac.actor_params, jax.random.PRNGKey(5), expert, ep)
+        assert split.keys() == whole.keys() and split_stats.keys() == whole_stats.keys()
+        for k in whole:
+            np.testing.assert_allclose(np.asarray(split[k]), np.asarray(whole[k]), atol=1e-6, err_msg=k)
+        for k in whole_stats:
+            np.testing.assert_allclose(np.asarray(split_stats[k]), np.asarray(whole_stats[k]), atol=1e-6, err_msg=k)
+        np.testing.assert_array_equal(split["demo"], expert)
+    assert not np.allclose(split["goal_xy"][0], split["goal_xy"][2])  # different episodes, not one repeated
 
 
 # --- the evaluator on the trained policy --------------------------------------------------------------
@@ -199,9 +281,10 @@ def test_reproduce_reuses_the_run_and_caches_each_evaluation(tiny_egru_run, eval
     text = (out / "report.md").read_text()
     assert "| cylinder | eGRU |" in text
     # The training section comes from the run's metrics.csv: its evaluations and its cost.
-    training = report.read_training(run_dir)
-    assert training["eval_env_steps"] == [6, 12] and training["env_steps"] == 12 and training["wall_s"] > 0
-    assert f"| eGRU | 1 | 12 | {training['updates']:,} |" in text and f"| {step:,} |" in text
+    training, batch = report.read_training(run_dir), cfg.train.loop.eval_every_env_steps  # two batches
+    assert training["eval_env_steps"] == [batch, 2 * batch] and training["env_steps"] == 2 * batch
+    assert training["wall_s"] > 0
+    assert f"| eGRU | 1 | {2 * batch} | {training['updates']:,} |" in text and f"| {step:,} |" in text
     assert (out / "learning_curves.png").stat().st_size > 10_000
 
     log, again = go()
@@ -263,22 +346,26 @@ def test_reproduce_teacher_free_forks_each_finished_run_and_reports_the_forks(
 
     monkeypatch.setattr(run_mod, "run", fake_fork)
 
+    end, tf = cfg.train.loop.total_env_steps, 6  # the run's end; the teacher annealed over tf / 2
+
     def go(**kw):
-        return _reproduce_tiny(out, cfg, teacher_free=6, **kw)
+        return _reproduce_tiny(out, cfg, teacher_free=tf, **kw)
 
     log = go()
     fork = out / "teacher-free" / "runs" / "egru-s0"
-    assert calls == [(teacher_free_config(cfg, 6), fork, False, ForkSource(base))]
+    assert calls == [(teacher_free_config(cfg, tf), fork, False, ForkSource(base))]
     assert f"reusing finished run {base}" in log and f"forking {base} at its last checkpoint into {fork}" in log
     assert (fork / "eval-difficult-cylinder-2.json").is_file() and not (
         base / "eval-difficult-cylinder-2.json"
     ).exists()
     assert sorted(p.name for p in base.iterdir()) == base_files
     results = json.loads((out / "teacher-free" / "results.json").read_text())
-    assert results["meta"]["teacher_free"] == 6 and results["meta"]["teacher_free_env_steps"] == [12, 15, 18]
+    assert results["meta"]["teacher_free"] == tf
+    assert results["meta"]["teacher_free_env_steps"] == [end, end + tf // 2, end + tf]
     assert list(results["combined"]) == ["egru"]
     text = " ".join((out / "teacher-free" / "report.md").read_text().split())  # wrapped lines joined
-    assert "--teacher-free 6" in text and "between 12 and 15 env steps" in text and "| cylinder | eGRU |" in text
+    assert f"--teacher-free {tf}" in text and f"between {end} and {end + tf // 2} env steps" in text
+    assert "| cylinder | eGRU |" in text
     assert not (out / "report.md").exists()  # the plain comparison's report is not written over
 
     log = go()

@@ -1,5 +1,6 @@
 """End to end on the MJX scene: masks -> encoder -> SAC + HER -> checkpoint and policy, at a tiny size
-(2 environments, 3-step episodes) so that compilation, not simulation, is the cost."""
+(2-4 environments, 3-step episodes) so that compilation, not simulation, is the cost. The tests that
+run the tiny eGRU run's own programs live beside it, in tests/test_tiny_egru_run.py."""
 
 import mjx_push.train  # noqa: F401  (applies the XLA CPU flag before JAX starts)
 
@@ -44,7 +45,7 @@ def test_nan_in_a_running_environment_drops_the_episode_and_training_continues(e
     from mjx_push import objects
     from mjx_push.batch import BatchState
 
-    cfg = tiny_run_config("vpm", encoder_file)
+    cfg = tiny_run_config("vpm", encoder_file, num_envs=2)
     cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, objects=objects.ObjectConfig(shape="cuboid")))
     base = make_push_adapter(cfg.env, enc.load(encoder_file), substep_chunk=0)
 
@@ -72,48 +73,6 @@ def test_push_adapter_rejects_a_negative_substep_chunk():
         make_push_adapter(EnvConfig(), None, -1)
 
 
-def test_batches_after_the_first_compile_nothing_and_evaluate_the_protocols_episodes(encoder_file):
-    """The tiny eGRU run's configuration as `run` builds it (so its programs are the fixture's): the
-    environments are split over the host devices, yet the learner and the next rollout reuse the first
-    batch's programs (argument placements that changed per batch once recompiled the rollout), and the
-    in-run evaluation runs the protocol's episodes in their order. Whether an actor learns the expert's
-    pushes on this scene: benchmarks/learning_checks.py (scene-imitation), run by CI."""
-    from mjx_push.train.episodes import EvalSpec, episode_objects
-    from mjx_push.train.loop import Runner, make_train
-    from mjx_push.train.push_task import DEFAULT_SUBSTEP_CHUNK, EVAL_SHAPE
-
-    cfg = tiny_run_config("egru", encoder_file)
-    adapter = make_push_adapter(cfg.env, enc.load(encoder_file), DEFAULT_SUBSTEP_CHUNK, cfg.expert)
-    runner = Runner(make_train(cfg.train, adapter))
-    state = runner.init(jax.random.PRNGKey(cfg.train.loop.seed))
-    untrained = jax.tree.map(jnp.copy, state.sac.actor_params)
-    compiles = []  # programs compiled (or loaded from the cache) after the first batch
-
-    def on_event(event, secs, **kwargs):
-        if ("backend_compile" in event and secs > 0.5) or "cache_retrieval" in event:
-            compiles.append((event, round(secs, 2)))
-
-    T = cfg.env.episode_length
-    history = []
-    for i in range(cfg.train.loop.num_iterations(T)):
-        if i == 1:
-            jax.monitoring.register_event_duration_secs_listener(on_event)
-        state, m = runner.iteration(state)
-        history.append(m)
-    jax.monitoring.unregister_event_duration_listener(on_event)
-    assert len(history) == 2 and bool(history[-1]["learning"])  # the second batch ran updates
-    assert runner.trainer.rollout_mesh is None or runner.trainer.rollout_mesh.size == len(jax.devices())
-    assert compiles == [], compiles
-
-    ev = runner.evaluate(untrained)
-    loop = cfg.train.loop
-    spec = EvalSpec(setting=loop.eval_setting, shape=EVAL_SHAPE[cfg.env.objects.shape], seed=loop.eval_seed)
-    assert cfg.env.objects.shape == "any" and loop.eval_episodes == 2  # cuboid episode 0, cylinder episode 1
-    want = [episode_objects(spec, cfg.env.objects, g, np.array([i]))[0] for i, g in enumerate(("box", "cylinder"))]
-    start = [np.linalg.norm(w.start[0, :2] - w.goal[0, :2]) for w in want]
-    np.testing.assert_allclose(ev["episode_start_distance"], start, rtol=1e-5)
-
-
 def test_a_data_parallel_runs_adapter_keeps_each_batch_on_one_device():
     """`run_adapter`: a one-device run splits a batch over the host devices, a data-parallel run keeps
     each device's share whole on it (what `make_train` asks of it)."""
@@ -126,43 +85,6 @@ def test_a_data_parallel_runs_adapter_keeps_each_batch_on_one_device():
     per_device = dataclasses.replace(cfg, train=dataclasses.replace(cfg.train, loop=split))
     assert run_adapter(cfg, None).mesh(4) is not None
     assert run_adapter(per_device, None).mesh(4) is None
-
-
-def test_a_batch_split_over_the_devices_by_whole_episodes_runs_one_devices_episodes(encoder_file):
-    """A one-device run on several host devices splits each batch by whole episodes (each device runs
-    its share's episodes as a batch of its own, `make_split_collect`): its training episodes (expert
-    and agent alike) and its evaluation episodes are those of the same batch run on one device, in the
-    batch's order. Four environments: two cuboids and two cylinders, one of each per device."""
-    import dataclasses
-
-    from mjx_push.train.loop import Runner, make_train
-    from mjx_push.train.rollout import make_collect
-
-    if len(jax.devices()) < 2:
-        pytest.skip("one device: MJX_PUSH_CPU_DEVICES=1 or a one-core machine, nothing to split")
-    cfg = tiny_run_config("egru", encoder_file)
-    loop = dataclasses.replace(cfg.train.loop, num_envs=4, eval_episodes=4)
-    cfg = dataclasses.replace(cfg, train=dataclasses.replace(cfg.train, loop=loop))
-    params = enc.load(encoder_file)
-    runner = Runner(make_train(cfg.train, make_push_adapter(cfg.env, params, expert_config=cfg.expert)))
-    assert runner.trainer.rollout_mesh.size == 2 and runner.trainer.rollout_split == "episodes"
-    state = runner.init(jax.random.PRNGKey(1))
-    one = make_push_adapter(cfg.env, params, expert_config=cfg.expert, max_devices=1)
-    collect = make_collect(cfg.train, one, runner.trainer.networks)
-    on_one = jax.jit(lambda p, k, e, ep: collect(p, k, 4, jnp.asarray(False), jnp.asarray(False), e, ep))
-    expert = jnp.asarray([True, False, False, True])
-    chunk = runner.eval_chunks()[0]
-    for use in (False, True):  # training's fresh episodes, then the protocol's
-        ep = {**chunk, "use": np.asarray(use)}
-        split, split_stats = runner.rollout(state.sac.actor_params, jax.random.PRNGKey(5), False, False, expert, ep)
-        whole, whole_stats = on_one(state.sac.actor_params, jax.random.PRNGKey(5), expert, ep)
-        assert split.keys() == whole.keys() and split_stats.keys() == whole_stats.keys()
-        for k in whole:
-            np.testing.assert_allclose(np.asarray(split[k]), np.asarray(whole[k]), atol=1e-6, err_msg=k)
-        for k in whole_stats:
-            np.testing.assert_allclose(np.asarray(split_stats[k]), np.asarray(whole_stats[k]), atol=1e-6, err_msg=k)
-        np.testing.assert_array_equal(split["demo"], expert)
-    assert not np.allclose(split["goal_xy"][0], split["goal_xy"][2])  # different episodes, not one repeated
 
 
 def test_the_device_layout_gives_each_device_a_slice_of_every_group():
@@ -185,10 +107,7 @@ def test_an_adapter_with_a_function_replaced_has_only_its_physics_split():
 
     if len(jax.devices()) < 2:
         pytest.skip("one device: MJX_PUSH_CPU_DEVICES=1 or a one-core machine, nothing to split")
-    cfg = tiny_run_config("vpm", None)
-    cfg = dataclasses.replace(
-        cfg, train=dataclasses.replace(cfg.train, loop=dataclasses.replace(cfg.train.loop, num_envs=4))
-    )
+    cfg = tiny_run_config("vpm", None)  # 4 environments: two cuboids, two cylinders
     adapter = make_push_adapter(cfg.env, None)
     wrapped = dataclasses.replace(adapter, step=lambda s, a: adapter.step(s, a))
     assert make_train(cfg.train, adapter).rollout_split == "episodes"
