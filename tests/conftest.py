@@ -27,7 +27,6 @@ _LONGEST_FIRST = (
     "test_stress.py",
     "test_learner_features.py",
     "test_data_parallel.py",
-    "test_train_mjx.py",
 )
 
 

@@ -44,19 +44,28 @@ def test_egru_trains_on_the_pushing_scene(tiny_egru_run):
 
 
 # --- the run's own programs: compiled once, by this worker's fixture, reused here -----------------------
-def test_batches_after_the_first_compile_nothing_and_evaluate_the_protocols_episodes(tiny_egru_run):
+@pytest.fixture(scope="module")
+def tiny_runner(tiny_egru_run):
+    """A Runner of the tiny eGRU run's configuration as `run` builds it (so its programs are the
+    fixture's), traced once for the tests below."""
+    from mjx_push.train.loop import Runner, make_train
+    from mjx_push.train.push_task import DEFAULT_SUBSTEP_CHUNK
+
+    cfg = tiny_egru_run[0]
+    adapter = make_push_adapter(cfg.env, enc.load(cfg.encoder), DEFAULT_SUBSTEP_CHUNK, cfg.expert)
+    return Runner(make_train(cfg.train, adapter))
+
+
+def test_batches_after_the_first_compile_nothing_and_evaluate_the_protocols_episodes(tiny_egru_run, tiny_runner):
     """The tiny eGRU run's configuration as `run` builds it (so its programs are the fixture's): the
     environments are split over the host devices, yet the learner and the next rollout reuse the first
     batch's programs (argument placements that changed per batch once recompiled the rollout), and the
     in-run evaluation runs the protocol's episodes in their order. Whether an actor learns the expert's
     pushes on this scene: benchmarks/learning_checks.py (scene-imitation), run by CI."""
     from mjx_push.train.episodes import EvalSpec, episode_objects
-    from mjx_push.train.loop import Runner, make_train
-    from mjx_push.train.push_task import DEFAULT_SUBSTEP_CHUNK, EVAL_SHAPE
+    from mjx_push.train.push_task import EVAL_SHAPE
 
-    cfg = tiny_egru_run[0]
-    adapter = make_push_adapter(cfg.env, enc.load(cfg.encoder), DEFAULT_SUBSTEP_CHUNK, cfg.expert)
-    runner = Runner(make_train(cfg.train, adapter))
+    cfg, runner = tiny_egru_run[0], tiny_runner
     state = runner.init(jax.random.PRNGKey(cfg.train.loop.seed))
     untrained = jax.tree.map(jnp.copy, state.sac.actor_params)
     compiles = []  # programs compiled (or loaded from the cache) after the first batch
@@ -86,20 +95,18 @@ def test_batches_after_the_first_compile_nothing_and_evaluate_the_protocols_epis
     np.testing.assert_allclose(ev["episode_start_distance"], start, rtol=1e-5)
 
 
-def test_a_batch_split_over_the_devices_by_whole_episodes_runs_one_devices_episodes(tiny_egru_run):
+def test_a_batch_split_over_the_devices_by_whole_episodes_runs_one_devices_episodes(tiny_egru_run, tiny_runner):
     """A one-device run on several host devices splits each batch by whole episodes (each device runs
     its share's episodes as a batch of its own, `make_split_collect`): its training episodes (expert
     and agent alike) and its evaluation episodes are those of the same batch run on one device, in the
     batch's order. Four environments: two cuboids and two cylinders, one of each per device."""
-    from mjx_push.train.loop import Runner, make_train
     from mjx_push.train.rollout import make_collect
 
     if len(jax.devices()) < 2:
         pytest.skip("one device: MJX_PUSH_CPU_DEVICES=1 or a one-core machine, nothing to split")
-    cfg = tiny_egru_run[0]  # its split rollout is the run's program
+    cfg, runner = tiny_egru_run[0], tiny_runner  # its split rollout is the run's program
     assert cfg.train.loop.num_envs == 4
     params = enc.load(cfg.encoder)
-    runner = Runner(make_train(cfg.train, make_push_adapter(cfg.env, params, expert_config=cfg.expert)))
     assert runner.trainer.rollout_mesh.size == 2 and runner.trainer.rollout_split == "episodes"
     state = runner.init(jax.random.PRNGKey(1))
     one = make_push_adapter(cfg.env, params, expert_config=cfg.expert, max_devices=1)
