@@ -44,11 +44,15 @@ def full_run(tmp_path_factory, toy, encoder_file):
 def test_killed_and_resumed_run_equals_an_uninterrupted_one(full_run, tmp_path, toy):
     cfg, _, _, full_state = full_run
     d = tmp_path / "resumed"
-    partial, _ = run_mod.run(cfg, d, adapter=toy, checkpoint_every=1, stop_after=3)
+    partial, partial_state = run_mod.run(cfg, d, adapter=toy, checkpoint_every=1, stop_after=3)
     assert partial["stopped_at_env_steps"] == 120
     # Reopen from disk, as a new process would: only the checkpoint carries the state over.
     summary, state = run_mod.run(cfg, d, adapter=toy, resume=True)
     assert summary["resumed_from_env_steps"] == 120
+    # Placed as an uninterrupted run's arrays are (uncommitted): so the resumed run's programs are the
+    # ones it compiled before, which the compilation cache holds (committed arrays compiled new ones).
+    placement = [x.committed for x in jax.tree.leaves(partial_state)]
+    assert not any(placement) and [x.committed for x in jax.tree.leaves(state)] == placement
     leaves = jax.tree_util.tree_leaves_with_path(jax.device_get(state))
     full_leaves = jax.tree_util.tree_leaves(full_state)
     assert len(leaves) == len(full_leaves) > 20

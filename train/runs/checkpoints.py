@@ -10,6 +10,7 @@ import warnings
 from pathlib import Path
 
 import jax
+import numpy as np
 import orbax.checkpoint as ocp
 
 from mjx_push.train import configio
@@ -30,6 +31,22 @@ def saved_steps(directory: Path) -> list[int]:
     """The env steps of the complete checkpoints in `directory`, ascending, read from the folder names
     alone (nothing opened; an unfinished write is a temporary folder and does not count)."""
     return sorted(int(p.name) for p in Path(directory).glob("*") if p.is_dir() and p.name.isdigit())
+
+
+def placed_like(state: TrainState, template: TrainState) -> TrainState:
+    """`state` with each array placed as the template's is. Orbax returns arrays committed to their
+    device; a fresh run's are uncommitted (jit places them). A program traced for committed arguments
+    is another program: a resumed or forked run whose functions take the state as it comes (one
+    device and no rollout split: a GPU, the toy task) compiled its rollout and learner anew, with the
+    run's own programs in the compilation cache. A data-parallel run's template is committed to its
+    mesh and its restored arrays stay as they are."""
+
+    def put(x, t):
+        if isinstance(x, jax.Array) and isinstance(t, jax.Array) and x.committed and not t.committed:
+            return jax.device_put(np.asarray(x))  # from host memory: uncommitted, on the default device
+        return x
+
+    return jax.tree.map(put, state, template)
 
 
 class Checkpoints:
@@ -108,12 +125,12 @@ class Checkpoints:
                     "from the run's initial state",
                     stacklevel=2,
                 )
-                return state, meta
+                return placed_like(state, template), meta
             raise ConfigError(
                 f"checkpoint {self.directory}/{step} is corrupt or does not match this run's "
                 f"state (shapes, dtypes or structure): {type(e).__name__}: {str(e)[:300]}"
             ) from None
-        return state, meta
+        return placed_like(state, template), meta
 
     def _missing_added_fields(self, step: int) -> tuple[str, ...]:
         """Which of `ADDED_FIELDS` the checkpoint at `step` does not hold, read from its tree metadata
