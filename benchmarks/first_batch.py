@@ -3,18 +3,19 @@ own duration events, `jax.monitoring`), the rollout and the updates of the first
 
     python -m benchmarks.first_batch [--agent vpm] [--preset cpu] [--shape any] [--threads] [--out OUT.json]
 
-No persistent compilation cache in this process, so every program compiles. `--shape cylinder` (or
+The persistent compilation cache is turned off in this process, so every program compiles. `--shape cylinder` (or
 `cuboid`, ...) trains one shape group: what one program per shape would compile. `--threads` then
 also compiles the rollouts of two one-shape runs (cylinder, cuboid), lowered first, one after the other
-and again in two threads: whether a second core can take one of them in the same process.
+and again in two threads: whether a second core can take one of them in the same process (the
+sequential round first: a warm-up, if any, favours the threads).
 """
 
 from __future__ import annotations
 
 import argparse
 import collections
-import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from mjx_push import xla  # the CPU fusion-emitter flag on import (before jax)
@@ -106,11 +107,9 @@ def two_rollouts_in_threads(agent: str, preset: str) -> dict:
     sequential = time.perf_counter() - t0
     lows = lowered()
     t0 = time.perf_counter()
-    threads = [threading.Thread(target=low.compile) for low in lows]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join()
+    with ThreadPoolExecutor(len(lows)) as pool:
+        for done in [pool.submit(low.compile) for low in lows]:
+            done.result()  # a failed compilation raises here, not only in its thread
     return {"sequential_s": sequential, "two_threads_s": time.perf_counter() - t0}
 
 
@@ -123,6 +122,9 @@ def main(argv=None) -> None:
     p.add_argument("--out", type=Path, default=None)
     a = p.parse_args(argv)
     xla.use_cpu_devices()
+    # Cold by construction: a cache set in the environment (JAX_COMPILATION_CACHE_DIR) would turn
+    # compilations into loads, and the threaded round into loads of what the sequential round wrote.
+    jax.config.update("jax_enable_compilation_cache", False)
     res = first_batches(a.agent, a.preset, a.shape)
     table = Table(title=f"{a.agent} / {a.preset}, shape {a.shape}: programs compiled (>= 1 s)")
     for col in ("program", "trace s", "lower s", "compile s"):

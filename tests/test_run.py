@@ -161,6 +161,7 @@ def test_a_checkpoint_written_before_a_state_field_existed_resumes_exactly(full_
     )
     with pytest.warns(UserWarning, match="written before TrainState had anchor_actor_params"):
         _, resumed = run_mod.run(cfg, d, adapter=toy, resume=True)
+    assert not any(x.committed for x in jax.tree.leaves(resumed))  # placed as a fresh run's (see above)
     for (path, a), b in zip(
         jax.tree_util.tree_leaves_with_path(jax.device_get(resumed)), jax.tree_util.tree_leaves(full_state)
     ):
@@ -565,6 +566,7 @@ def test_a_fork_starts_from_the_checkpoint_with_new_settings_and_resumes_exactly
     assert _tree_snapshot(d) == before  # the source is only read
 
     whole, whole_state = run_mod.run(fcfg, tmp_path / "whole", adapter=toy, fork=ForkSource(d, 160))
+    assert not any(x.committed for x in jax.tree.leaves(whole_state))  # the source's arrays placed as a fresh run's
     for (path, a), b in zip(
         jax.tree_util.tree_leaves_with_path(jax.device_get(state)), jax.tree.leaves(jax.device_get(whole_state))
     ):

@@ -36,10 +36,10 @@ def saved_steps(directory: Path) -> list[int]:
 def placed_like(state: TrainState, template: TrainState) -> TrainState:
     """`state` with each array placed as the template's is. Orbax returns arrays committed to their
     device; a fresh run's are uncommitted (jit places them). A program traced for committed arguments
-    is another program: a resumed or forked run whose functions take the state as it comes (one
-    device and no rollout split: a GPU, the toy task) compiled its rollout and learner anew, with the
-    run's own programs in the compilation cache. A data-parallel run's template is committed to its
-    mesh and its restored arrays stay as they are."""
+    is another program: a resumed run whose functions take the state as it comes (one device and no
+    rollout split: a GPU, the toy task) compiled its rollout and learner anew, with the run's own
+    programs in the compilation cache (a fork too, where its changes leave the programs alone). A
+    data-parallel run's template is committed to its mesh and its restored arrays stay as they are."""
 
     def put(x, t):
         if isinstance(x, jax.Array) and isinstance(t, jax.Array) and x.committed and not t.committed:
