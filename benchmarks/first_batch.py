@@ -25,13 +25,10 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
+from benchmarks.jax_events import COMPILE_EVENT, LOWER_EVENT, TRACE_EVENT
 from benchmarks.output import write_json
 
-PHASES = {
-    "/jax/core/compile/jaxpr_trace_duration": "trace_s",
-    "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower_s",
-    "/jax/core/compile/backend_compile_duration": "compile_s",
-}
+PHASES = {TRACE_EVENT: "trace_s", LOWER_EVENT: "lower_s", COMPILE_EVENT: "compile_s"}
 
 
 def _runner(agent: str, preset: str, shape: str):

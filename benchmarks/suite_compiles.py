@@ -22,11 +22,8 @@ from pathlib import Path
 
 import pytest
 
+from benchmarks.jax_events import COMPILE_EVENT, LOWER_EVENT, TRACE_EVENT
 from benchmarks.output import write_json
-
-_COMPILE = "/jax/core/compile/backend_compile_duration"
-_TRACE = "/jax/core/compile/jaxpr_trace_duration"
-_LOWER = "/jax/core/compile/jaxpr_to_mlir_module_duration"
 
 
 class _Recorder:
@@ -41,9 +38,9 @@ class _Recorder:
         )
 
     def on_event(self, event: str, duration: float, **kw) -> None:
-        if event == _COMPILE:
+        if event == COMPILE_EVENT:
             self.row()["compiles"].append([kw.get("fun_name", "?"), round(duration, 3)])
-        elif event in (_TRACE, _LOWER):
+        elif event in (TRACE_EVENT, LOWER_EVENT):
             r = self.row()
             r["trace_lower_s"] = r.get("trace_lower_s", 0.0) + duration
 
