@@ -3,11 +3,13 @@ own duration events, `jax.monitoring`), the rollout and the updates of the first
 
     python -m benchmarks.first_batch [--agent vpm] [--preset cpu] [--shape any] [--threads] [--out OUT.json]
 
-The persistent compilation cache is turned off in this process, so every program compiles. `--shape cylinder` (or
-`cuboid`, ...) trains one shape group: what one program per shape would compile. `--threads` then
-also compiles the rollouts of two one-shape runs (cylinder, cuboid), lowered first, one after the other
-and again in two threads: whether a second core can take one of them in the same process (the
-sequential round first: a warm-up, if any, favours the threads).
+The persistent compilation cache is turned off in this process, so every program compiles. A batch of
+both shapes on 2 host devices runs a rollout program per shape group (`run_envs`), each traced and
+compiled in a thread of its own: their seconds are summed over the threads, which overlap, so the
+batch's wall time is the figure to compare. `--shape cylinder` (or `cuboid`, ...) trains one shape
+group. `--threads` also compiles the rollouts of two one-shape runs (cylinder, cuboid), lowered first,
+one after the other and again in two threads: whether a second core can take one of them in the same
+process (the sequential round first: a warm-up, if any, favours the threads).
 """
 
 from __future__ import annotations

@@ -90,12 +90,26 @@ class _Concatenated(Mapping):
 class PushBatch:
     """`num_envs` environments under `config`; `reset(key)` and `step(state, actions)` are pure and
     jittable (wrap them in `jax.jit` yourself, or use `jit_reset` / `jit_step`). Each shape group is
-    split over up to `max_devices` devices (None: all of the default backend's)."""
+    split over up to `max_devices` devices (None: all of the default backend's). `shapes`, a part of
+    the config's shape groups (`config.objects.shapes()`), builds only those: one group of a batch
+    as a batch of its own, its environments drawn as that group's are (a program per group)."""
 
-    def __init__(self, config: EnvConfig = EnvConfig(), num_envs: int = 8, max_devices: int | None = None):
+    def __init__(
+        self,
+        config: EnvConfig = EnvConfig(),
+        num_envs: int = 8,
+        max_devices: int | None = None,
+        shapes: tuple[str, ...] | None = None,
+    ):
         if not isinstance(num_envs, int) or num_envs < 1:
             raise ConfigError(f"num_envs must be a positive integer, got {num_envs!r}")
-        shapes = config.objects.shapes()
+        all_shapes = config.objects.shapes()
+        if shapes is not None and (not shapes or tuple(s for s in all_shapes if s in shapes) != tuple(shapes)):
+            raise ConfigError(
+                f"shapes must be some of the shape filter {config.objects.shape!r}'s groups {all_shapes} "
+                f"in their order, got {shapes!r}"
+            )
+        shapes = all_shapes if shapes is None else tuple(shapes)
         if len(shapes) == 2 and num_envs < 2:
             raise ConfigError("shape filter 'any' needs num_envs >= 2 (one group per shape); pick a shape or more envs")
         self.config = config

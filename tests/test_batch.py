@@ -1,5 +1,7 @@
 """The mixed-shape batch: shape groups, determinism, utilisation, bad input."""
 
+import re
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -139,6 +141,17 @@ def test_bad_input(batch):
         EnvConfig(objects=objects.ObjectConfig(shape="sphere"))
     single = PushBatch(EnvConfig(objects=objects.ObjectConfig(shape="cylinder")), 1)
     assert single.geom_types == ("cylinder",) and single.counts == (1,)
+    group = PushBatch(EnvConfig(), 1, shapes=("cylinder",))  # one group of a mixed batch, on its own
+    assert group.geom_types == ("cylinder",) and group.counts == (1,)
+    for bad, cfg in (
+        (("box", "cylinder"), EnvConfig(objects=objects.ObjectConfig(shape="cylinder"))),
+        (("cylinder", "box"), EnvConfig()),
+        ((), EnvConfig()),
+    ):
+        with pytest.raises(
+            ValueError, match=r"shapes must be some of the shape filter .*, got " + re.escape(repr(bad))
+        ):
+            PushBatch(cfg, 4, shapes=bad)
 
 
 def test_the_batch_is_split_over_the_host_devices_and_steps_as_on_one(batch):

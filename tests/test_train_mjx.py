@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mjx_push import encoder as enc
+from mjx_push import devices, encoder as enc
 from tests.helpers import tiny_run_config
 from mjx_push.train.runs import run as run_mod
 from mjx_push.train.push_task import make_push_adapter, run_adapter
@@ -98,9 +98,10 @@ def test_the_device_layout_gives_each_device_a_slice_of_every_group():
 
 
 def test_an_adapter_with_a_function_replaced_has_only_its_physics_split():
-    """The whole-episode split runs the push task's own one-device twin, so a copy of the adapter with
-    its step (or reset, scheduler, expert) replaced keeps the physics-only split, which runs the copy's
-    functions (test_nan_in_a_running_environment... relies on it); nothing is compiled here."""
+    """The whole-episode splits run the push task's own one-device twins (one per shape group, or one
+    of the whole batch for a one-shape run), so a copy of the adapter with its step (or reset,
+    scheduler, expert) replaced keeps the physics-only split, which runs the copy's functions
+    (test_nan_in_a_running_environment... relies on it); nothing is compiled here."""
     import dataclasses
 
     from mjx_push.train.loop import make_train
@@ -110,6 +111,9 @@ def test_an_adapter_with_a_function_replaced_has_only_its_physics_split():
     cfg = tiny_run_config("vpm", None)  # 4 environments: two cuboids, two cylinders
     adapter = make_push_adapter(cfg.env, None)
     wrapped = dataclasses.replace(adapter, step=lambda s, a: adapter.step(s, a))
-    assert make_train(cfg.train, adapter).rollout_split == "episodes"
+    assert make_train(cfg.train, adapter).rollout_split == "groups"
     assert make_train(cfg.train, wrapped).rollout_split == "physics"
+    cylinders = dataclasses.replace(cfg.env, objects=dataclasses.replace(cfg.env.objects, shape="cylinder"))
+    want = "episodes" if devices.shard_map_compiles() else "physics"  # one group: each device a share of it
+    assert make_train(cfg.train, make_push_adapter(cylinders, None)).rollout_split == want
     assert make_train(cfg.train, make_push_adapter(cfg.env, None, max_devices=1)).rollout_split is None

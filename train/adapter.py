@@ -76,11 +76,13 @@ class EnvAdapter:
     expert: Callable[[dict, dict], jax.Array] | None = None
     # The devices a batch of ``num_envs`` environments is split over (a jax Mesh), or None for one.
     mesh: Callable[[int], Any] | None = None
-    # ``one_device(adapter)``: the same environment with every batch on one device, whose ``reset``
-    # also takes the environments' own keys [N, 2] (those ``jax.random.split(key, N)`` gives), or None
-    # when ``adapter`` is not the one that made it (a copy with a function replaced: its twin would
-    # drop the change). With it the rollout splits a batch over ``mesh`` by whole episodes, each device
-    # running its share as a batch of its own (``mjx_push.train.rollout.make_split_collect``).
-    one_device: Callable[["EnvAdapter"], "EnvAdapter | None"] | None = None
+    # ``one_device(adapter, group=None)``: the same environment with every batch on one device, whose
+    # ``reset`` also takes the environments' own keys [N, 2] (those ``jax.random.split(key, N)``
+    # gives), or None when ``adapter`` is not the one that made it (a copy with a function replaced:
+    # its twin would drop the change). With ``group`` (an index into ``groups``) only that group's
+    # environments, as a batch of their own. With it the rollout splits a batch over ``mesh`` by whole
+    # episodes: one program per group on its own devices (``mjx_push.train.rollout.make_group_collect``)
+    # or each device running its share of every group (``make_split_collect``).
+    one_device: Callable[..., "EnvAdapter | None"] | None = None
     groups: Callable[[int], tuple[int, ...]] | None = None
     eval_episodes: Callable[[str, int, int, int], dict] | None = None

@@ -39,7 +39,7 @@ from mjx_push.train.config import TrainConfig
 from mjx_push.train.networks import Networks, make_networks
 from mjx_push.train.normalizer import RunningStats
 from mjx_push.train.replay import ReplayBuffer
-from mjx_push.train.rollout import episode_means, make_collect, make_split_collect
+from mjx_push.train.rollout import episode_means, make_collect, make_group_collect, make_split_collect
 from mjx_push.train.sac import SACState, init_state, make_update
 from mjx_push.errors import ConfigError
 
@@ -93,7 +93,8 @@ class Trainer:
     eval_key: jax.Array
     num_eval_chunks: int
     rollout_mesh: Any = None  # the devices the training rollout's environments are split over
-    # How: "episodes" (each device runs its share's whole episodes) or "physics" (only the substeps).
+    # How: "groups" (a program per shape group, each on devices of its own), "episodes" (each device
+    # runs its share of every group's whole episodes) or "physics" (only the substeps).
     rollout_split: str | None = None
     adapter: EnvAdapter | None = None  # the environment (its expert groups and evaluation episodes)
 
@@ -178,15 +179,19 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
         )
 
     rollout_mesh = adapter.mesh(N) if adapter.mesh and D == 1 else None
-    twin = None
-    if rollout_mesh is not None and adapter.one_device is not None and devices.shard_map_compiles():
-        twin = adapter.one_device(adapter)
-    if twin is not None:
-        # Each device runs its share of the batch's episodes whole: no joining of devices every tick.
-        collect = make_split_collect(config, twin, nets, rollout_mesh, adapter.groups(N))
-    else:
-        collect = make_collect(config, adapter, nets)
-    rollout_split = None if rollout_mesh is None else ("episodes" if twin is not None else "physics")
+    collect, rollout_split = make_collect(config, adapter, nets), None if rollout_mesh is None else "physics"
+    if rollout_mesh is not None and adapter.one_device is not None:
+        # Each device runs whole episodes: no joining of devices at every tick of the rollout.
+        groups = tuple(adapter.groups(N)) if adapter.groups else (N,)
+        twins = [adapter.one_device(adapter, g) for g in range(len(groups))] if len(groups) > 1 else []
+        twins = twins if twins and None not in twins else []
+        one_per_group = bool(twins) and rollout_mesh.size % len(groups) == 0
+        if one_per_group and (rollout_mesh.size == len(groups) or devices.shard_map_compiles()):
+            # A program per shape group on devices of its own, the groups compiled side by side.
+            collect, rollout_split = make_group_collect(config, twins, nets, rollout_mesh, groups), "groups"
+        elif devices.shard_map_compiles() and (twin := adapter.one_device(adapter)) is not None:
+            # Each device runs its share of every group.
+            collect, rollout_split = make_split_collect(config, twin, nets, rollout_mesh, groups), "episodes"
 
     bc = sac_cfg.bc_weight > 0
     anchored = sac_cfg.anchor_weight > 0
@@ -339,9 +344,8 @@ class Runner:
         # The updates step no physics: compiled with XLA's CPU fusion emitters (mjx_push.xla).
         self.learn = jax.jit(trainer.learn, donate_argnums=0, compiler_options=xla.physics_free_options())
         self.select = jax.jit(trainer.select, donate_argnums=0)
-        rollout = jax.jit(trainer.rollout)
         if trainer.rollout_mesh is None:
-            self._rollout = rollout
+            self._rollout = jax.jit(trainer.rollout)
         else:
             # The rollout's environments are split over several devices (mjx_push.devices). Its
             # arguments are replicated onto them and what it returns is gathered onto one device, so
@@ -349,8 +353,12 @@ class Runner:
             # ``learn`` would run replicated, and the shardings of the rollout's arguments would
             # change from call to call, recompiling it every batch).
             spread = jax.sharding.NamedSharding(trainer.rollout_mesh, jax.sharding.PartitionSpec())
-            home = jax.sharding.SingleDeviceSharding(jax.devices()[0])
-            self._rollout = lambda *args: jax.device_put(rollout(*jax.device_put(args, spread)), home)
+            home = jax.sharding.SingleDeviceSharding(trainer.rollout_mesh.devices.flat[0])
+            if trainer.rollout_split == "groups":  # its groups' programs place their own arguments
+                self._rollout = trainer.rollout
+            else:
+                rollout = jax.jit(trainer.rollout)
+                self._rollout = lambda *args: jax.device_put(rollout(*jax.device_put(args, spread)), home)
             # Committed to that device from the first call on (a fresh state is not), so the learner's
             # functions see the same argument placements every batch and compile once.
             learn, select = self.learn, self.select

@@ -108,11 +108,13 @@ def make_push_adapter(
     substep_chunk: int = DEFAULT_SUBSTEP_CHUNK,
     expert_config: expert_mod.ExpertConfig = expert_mod.ExpertConfig(),
     max_devices: int | None = None,
+    shapes: tuple[str, ...] | None = None,
 ) -> EnvAdapter:
-    """Adapter over `PushBatch(env_config, n, max_devices)`; one batch object is built per environment
-    count `n`. `substep_chunk` 0 steps all environments in lockstep; both give the same episodes. The
-    adapter's expert is `mjx_push.expert` under `expert_config`. `max_devices` 1 keeps every batch on
-    one device (a data-parallel run's per-device share)."""
+    """Adapter over `PushBatch(env_config, n, max_devices, shapes)`; one batch object is built per
+    environment count `n`. `substep_chunk` 0 steps all environments in lockstep; both give the same
+    episodes. The adapter's expert is `mjx_push.expert` under `expert_config`. `max_devices` 1 keeps
+    every batch on one device (a data-parallel run's per-device share); `shapes` builds only those
+    shape groups (a group's own program: its evaluation episodes come from the whole batch's adapter)."""
     if not (isinstance(substep_chunk, int) and substep_chunk >= 0):
         raise ConfigError(f"substep_chunk must be an integer >= 0 (0: lockstep), got {substep_chunk!r}")
     batches: dict[int, PushBatch] = {}
@@ -122,7 +124,7 @@ def make_push_adapter(
             # Built on first use, often while a function is being traced: its model and constants must
             # be concrete arrays, not tracers of that one trace, since later traces reuse the batch.
             with jax.ensure_compile_time_eval():
-                batches[n] = PushBatch(env_config, n, max_devices)
+                batches[n] = PushBatch(env_config, n, max_devices, shapes)
         return batches[n]
 
     def is_box(s: BatchState) -> jax.Array:
@@ -191,12 +193,14 @@ def make_push_adapter(
 
     scheduler = SubstepScheduler(begin, advance, ready, finish, substep_chunk) if substep_chunk else None
 
-    def one_device(adapter: EnvAdapter) -> EnvAdapter | None:
-        """This environment with every batch on one device, for `adapter` if it is this one's own
-        environment (a copy with its reset, step, scheduler or expert replaced gets None)."""
+    def one_device(adapter: EnvAdapter, group: int | None = None) -> EnvAdapter | None:
+        """This environment with every batch on one device (only shape group `group`'s environments
+        when given), for `adapter` if it is this one's own environment (a copy with its reset, step,
+        scheduler or expert replaced gets None)."""
         if (adapter.reset, adapter.step, adapter.scheduler, adapter.expert) != (reset, step, scheduler, expert):
             return None
-        return make_push_adapter(env_config, encoder_params, substep_chunk, expert_config, max_devices=1)
+        part = None if group is None else (env_config.objects.shapes()[group],)
+        return make_push_adapter(env_config, encoder_params, substep_chunk, expert_config, max_devices=1, shapes=part)
 
     return EnvAdapter(
         reset=reset,
@@ -209,5 +213,5 @@ def make_push_adapter(
         mesh=lambda n: batch(n).mesh,
         one_device=None if max_devices == 1 else one_device,
         groups=lambda n: batch(n).counts,
-        eval_episodes=eval_episodes,
+        eval_episodes=eval_episodes if shapes is None else None,
     )

@@ -280,3 +280,83 @@ def make_split_collect(config: TrainConfig, one_device: EnvAdapter, nets: Networ
         return eps, episode_stats(eps, one_device.success_tau)
 
     return collect
+
+
+def make_group_collect(config: TrainConfig, twins, nets: Networks, mesh, groups: tuple[int, ...]):
+    """``collect`` (same arguments and results, the same episodes to float rounding) with each of the
+    batch's contiguous groups (``adapter.groups``, the shape groups) run as a program of its own on
+    its own ``mesh.size // len(groups)`` devices, ``twins[g]`` being group g's one-device environment
+    (``adapter.one_device(adapter, g)``). Each program holds one shape's physics only, about half of
+    what one program of both would; they are compiled, and run, from threads of their own, so on a
+    CPU the groups' compilations share the cores instead of queueing on one. Not jittable (each
+    program is); what it returns lies on the mesh's first device, where the learner runs."""
+    T, G = twins[0].episode_len, len(groups)
+    if len(twins) != G or mesh.size % G:
+        raise ConfigError(f"{G} groups over {mesh.size} devices: each group needs devices of its own")
+    starts = np.cumsum((0,) + tuple(groups))[:-1]
+    per_group = mesh.size // G
+    home = jax.sharding.SingleDeviceSharding(mesh.devices.flat[0])
+    runs = [make_run_envs(config, twin, nets) for twin in twins]
+    meshes = [
+        jax.sharding.Mesh(np.asarray(mesh.devices.flat[g * per_group : (g + 1) * per_group]), (devices.AXIS,))
+        for g in range(G)
+    ]
+    programs: dict = {}
+
+    def program(g: int, episode_fields: tuple[str, ...] | None):
+        """Group g's compiled rollout (built once per kind of call: with evaluation episodes or not)."""
+        if (g, episode_fields) not in programs:
+            env = P(devices.AXIS)
+            specs = (P(), env, P(), env, P(), P(), env)
+            if episode_fields is not None:  # the evaluation episodes' fields per environment, their flag for all
+                specs += ({k: P() if k == "use" else env for k in episode_fields},)
+            split = jax.shard_map(runs[g], mesh=meshes[g], in_specs=specs, out_specs=env, check_vma=False)
+            # One device per group (2 groups, 2 cores): the plain program, the arguments placed on it.
+            programs[g, episode_fields] = jax.jit(runs[g] if per_group == 1 else split)
+        return programs[g, episode_fields]
+
+    @jax.jit
+    def join(parts):
+        eps = jax.tree.map(lambda *xs: jnp.concatenate(xs), *parts)
+        return eps, episode_stats(eps, twins[0].success_tau)
+
+    def collect(actor_params, key, num_envs: int, random_actions, deterministic, expert_envs, episodes=None):
+        if num_envs != sum(groups):
+            raise ConfigError(f"this rollout is laid out for {sum(groups)} environments, got {num_envs}")
+        k_reset, k_roll = jax.random.split(key)
+        # The keys a one-device batch would give each environment (PushBatch.reset splits its key so).
+        reset_keys = jax.random.split(k_reset, num_envs)
+        ks = jax.random.split(k_roll, T)
+        expert_envs = jnp.broadcast_to(expert_envs, (num_envs,))
+        env_ids = jnp.arange(num_envs)
+
+        def run_group(g):
+            sl = slice(int(starts[g]), int(starts[g]) + groups[g])
+            everywhere = jax.sharding.NamedSharding(meshes[g], P())
+            split = jax.sharding.NamedSharding(meshes[g], P(devices.AXIS))
+            shared = jax.device_put((actor_params, ks, random_actions, deterministic), everywhere)
+            own = jax.device_put((reset_keys[sl], env_ids[sl], expert_envs[sl]), split)
+            args = (shared[0], own[0], shared[1], own[1], shared[2], shared[3], own[2])
+            fields = None
+            if episodes is not None:
+                fields = tuple(episodes)
+                share = {k: v if k == "use" else jax.tree.map(lambda x: x[sl], v) for k, v in episodes.items()}
+                args += ({k: jax.device_put(v, everywhere if k == "use" else split) for k, v in share.items()},)
+            return jax.block_until_ready(program(g, fields)(*args))
+
+        parts = list(_pool(G).map(run_group, range(G)))
+        return join(jax.device_put(parts, home))
+
+    return collect
+
+
+_POOLS: dict = {}
+
+
+def _pool(n: int):
+    """``n`` threads kept for the process, from which the groups' programs are compiled and run."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    if n not in _POOLS:
+        _POOLS[n] = ThreadPoolExecutor(n, thread_name_prefix="mjx-push-group")
+    return _POOLS[n]
