@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -47,11 +48,13 @@ def first_batches(agent: str, preset: str, shape: str) -> dict:
     """Two batches of a fresh run; the programs compiled in each, by name and phase."""
     events: dict = collections.defaultdict(float)
     current = {"batch": "setup"}
+    lock = threading.Lock()  # the shape groups' programs report from two threads
 
     def on_event(event, secs, **kw):
         if event in PHASES and secs > 0.05:
             name = str(kw.get("fun_name", "?")).removeprefix("jit(").removesuffix(")")
-            events[(current["batch"], name, PHASES[event])] += secs
+            with lock:
+                events[(current["batch"], name, PHASES[event])] += secs
 
     jax.monitoring.register_event_duration_secs_listener(on_event)
     try:

@@ -75,7 +75,8 @@ def test_whole_episode_splits_give_one_devices_episodes(two_devices, random_acti
     cfg = toy_config("ugru", 80, num_envs=8, warmup_env_steps=40, eval_episodes=8, hidden=(16, 16))
     adapter = two_group_toy()
     trainer = make_train(cfg, adapter)
-    assert trainer.rollout_split == "groups" and trainer.rollout_mesh.size == 2
+    # One device per group on 2 cores; more cores give each group's program a share of them.
+    assert trainer.rollout_split == "groups" and trainer.rollout_mesh.size % 2 == 0
     params = trainer.init(jax.random.PRNGKey(0)).sac.actor_params
     expert = jnp.asarray([True, False, False, False, False, True, False, False])  # in both groups
     flags = (jnp.asarray(random_actions), jnp.asarray(False), expert)
@@ -106,3 +107,5 @@ def test_a_group_program_needs_devices_of_its_own(two_devices):
     collect = make_group_collect(cfg, twins, nets, devices.env_mesh((2,)), (3, 3))
     with pytest.raises(ConfigError, match=r"laid out for 6 environments, got 8"):
         collect(None, jax.random.PRNGKey(0), 8, False, False, False)
+    with pytest.raises(ConfigError, match=r"runs its compiled programs itself: call it unjitted"):
+        jax.jit(lambda k: collect(None, k, 6, False, False, False))(jax.random.PRNGKey(0))

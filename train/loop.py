@@ -1,6 +1,7 @@
 """Jitted rollout + update loop (brax / purejaxrl style) and its host driver.
 
-``make_train(config, adapter)`` returns pure, jittable pieces:
+``make_train(config, adapter)`` returns pure, jittable pieces (the rollout split into a program per shape
+group, ``Trainer.rollout_split == "groups"``, runs its jitted programs itself and is called unjitted):
 
 * ``init(key) -> TrainState``
 * ``rollout(actor_params, key, random_actions, deterministic, expert_envs, episodes) -> (episodes,
@@ -12,7 +13,7 @@
 * ``select(state, eval_stats)`` keeps the best actor params by mean evaluation reward (the reference's
   selection).
 
-``Runner`` jits ``rollout`` once and ``learn`` once and drives them from Python, one call each per
+``Runner`` compiles ``rollout`` once and ``learn`` once and drives them from Python, one call each per
 episode batch, so logging, progress bars and checkpoints sit between iterations; its ``evaluate`` runs
 ``eval_episodes`` deterministic episodes through the same rollout; ``train`` is its plain loop.
 Everything a checkpoint must hold to resume lives in the one ``TrainState`` pytree (environments are

@@ -290,9 +290,10 @@ def make_group_collect(config: TrainConfig, twins, nets: Networks, mesh, groups:
     what one program of both would; they are compiled, and run, from threads of their own, so on a
     CPU the groups' compilations share the cores instead of queueing on one. Not jittable (each
     program is); what it returns lies on the mesh's first device, where the learner runs."""
-    T, G = twins[0].episode_len, len(groups)
+    G = len(groups)
     if len(twins) != G or mesh.size % G:
         raise ConfigError(f"{G} groups over {mesh.size} devices: each group needs devices of its own")
+    T = twins[0].episode_len
     starts = np.cumsum((0,) + tuple(groups))[:-1]
     per_group = mesh.size // G
     home = jax.sharding.SingleDeviceSharding(mesh.devices.flat[0])
@@ -323,6 +324,11 @@ def make_group_collect(config: TrainConfig, twins, nets: Networks, mesh, groups:
     def collect(actor_params, key, num_envs: int, random_actions, deterministic, expert_envs, episodes=None):
         if num_envs != sum(groups):
             raise ConfigError(f"this rollout is laid out for {sum(groups)} environments, got {num_envs}")
+        if isinstance(key, jax.core.Tracer):
+            raise ConfigError(
+                "a rollout split into shape-group programs runs its compiled programs itself: call it "
+                "unjitted (as Runner.rollout does), not inside jax.jit"
+            )
         k_reset, k_roll = jax.random.split(key)
         # The keys a one-device batch would give each environment (PushBatch.reset splits its key so).
         reset_keys = jax.random.split(k_reset, num_envs)
