@@ -184,9 +184,8 @@ def make_train(config: TrainConfig, adapter: EnvAdapter, action_dim: int = 3) ->
     if rollout_mesh is not None and adapter.one_device is not None:
         # Each device runs whole episodes: no joining of devices at every tick of the rollout.
         groups = tuple(adapter.groups(N)) if adapter.groups else (N,)
-        twins = [adapter.one_device(adapter, g) for g in range(len(groups))] if len(groups) > 1 else []
-        twins = twins if twins and None not in twins else []
-        one_per_group = bool(twins) and rollout_mesh.size % len(groups) == 0
+        twins = [adapter.one_device(adapter, g) for g in range(len(groups))] if len(groups) > 1 else [None]
+        one_per_group = None not in twins and rollout_mesh.size % len(groups) == 0
         if one_per_group and (rollout_mesh.size == len(groups) or devices.shard_map_compiles()):
             # A program per shape group on devices of its own, the groups compiled side by side.
             collect, rollout_split = make_group_collect(config, twins, nets, rollout_mesh, groups), "groups"

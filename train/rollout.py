@@ -307,13 +307,14 @@ def make_group_collect(config: TrainConfig, twins, nets: Networks, mesh, groups:
     def program(g: int, episode_fields: tuple[str, ...] | None):
         """Group g's compiled rollout (built once per kind of call: with evaluation episodes or not)."""
         if (g, episode_fields) not in programs:
-            env = P(devices.AXIS)
-            specs = (P(), env, P(), env, P(), P(), env)
-            if episode_fields is not None:  # the evaluation episodes' fields per environment, their flag for all
-                specs += ({k: P() if k == "use" else env for k in episode_fields},)
-            split = jax.shard_map(runs[g], mesh=meshes[g], in_specs=specs, out_specs=env, check_vma=False)
-            # One device per group (2 groups, 2 cores): the plain program, the arguments placed on it.
-            programs[g, episode_fields] = jax.jit(runs[g] if per_group == 1 else split)
+            run = runs[g]  # one device per group (2 groups, 2 cores): the plain program, its arguments placed
+            if per_group > 1:
+                env = P(devices.AXIS)
+                specs = (P(), env, P(), env, P(), P(), env)
+                if episode_fields is not None:  # the evaluation episodes' fields per environment, their flag for all
+                    specs += ({k: P() if k == "use" else env for k in episode_fields},)
+                run = jax.shard_map(run, mesh=meshes[g], in_specs=specs, out_specs=env, check_vma=False)
+            programs[g, episode_fields] = jax.jit(run)
         return programs[g, episode_fields]
 
     @jax.jit
