@@ -53,9 +53,12 @@ def table() -> str:
     lines = [format_summary(named), ""]
     for name, rec in rows:
         c = rec["config"]
+        wall = f"{rec['wall_s'] / 60:.0f} min"
+        if rec.get("resumed_episodes"):  # the wall time is the last process's alone
+            wall += f" for the last segment (resumed with {rec['resumed_episodes']} episodes done)"
         lines.append(
             f"- {name}: `{rec.get('source', rec['policy'])}`, {c['episodes']} episodes per cell and shape, "
-            f"{'/'.join(c['levels'])}, seed {c['seed']}, {rec['wall_s'] / 60:.0f} min."
+            f"{'/'.join(c['levels'])}, seed {c['seed']}, {wall}."
         )
     return "\n".join(lines)
 

@@ -210,6 +210,49 @@ def test_stress_suite_end_to_end_for_a_policy_and_the_expert(envs, encoder_file,
     assert expert_row[3].endswith("(rows it meets)") and expert_row[4] == "="  # mask_flip cannot reach it
 
 
+def test_a_stopped_stress_run_resumes_from_its_partial_file_to_the_same_record(
+    envs, encoder_file, monkeypatch, tmp_path
+):
+    from mjx_push import encoder as enc
+    from mjx_push.train.networks import make_networks
+    from mjx_push.train.runs.policies import Policy
+
+    cfg = run_config(encoder_file)
+    actor = make_networks(cfg.train.agent).init_actor(jax.random.PRNGKey(0), 3)
+    policy = Policy(cfg, actor, enc.init_vae(jax.random.PRNGKey(1))["encoder"], {})
+    sc = StressConfig(perturbations=("latency", "mask_flip"), levels=LEVELS, shapes=("square",), episodes=3, batch=B)
+    whole = stress.stress(policy, sc)  # 4 cells x 3 episodes: 4 chunks of the batch
+
+    partial = tmp_path / "stress.json.partial"
+    done = []
+
+    def stop_after_two(line):
+        done.append(line)
+        if len(done) == 2:
+            raise KeyboardInterrupt  # a kill between chunks: the partial file holds two
+
+    with pytest.raises(KeyboardInterrupt):
+        stress.stress(policy, sc, progress=stop_after_two, resume_from=partial)
+    assert len(json.loads(partial.read_text())["chunks"]) == 2
+    calls = []
+    run = stress.run_episodes
+    monkeypatch.setattr(stress, "run_episodes", lambda *a: calls.append(a) or run(*a))
+    resumed = stress.stress(policy, sc, resume_from=partial)
+    assert len(calls) == 2 and resumed["resumed_episodes"] == 6  # only the missing chunks ran
+    for key in ("rows", "score", "config"):
+        assert resumed[key] == whole[key], key
+    # Another policy (or other settings) does not resume this file, and a broken file is named.
+    other = Policy(cfg, jax.tree.map(lambda x: x + 1.0, actor), policy.encoder_params, {})
+    with pytest.raises(ConfigError, match="holds a stress run of another policy or other settings"):
+        stress.stress(other, sc, resume_from=partial)
+    with pytest.raises(ConfigError, match="holds a stress run of another policy"):
+        stress.stress(policy, dataclasses.replace(sc, seed=1), resume_from=partial)
+    partial.write_text("{not json")
+    with pytest.raises(ConfigError, match="stress.json.partial: not a readable stress partial file"):
+        stress.stress(policy, sc, resume_from=partial)
+    assert partial.read_text() == "{not json"  # refused, nothing overwritten
+
+
 def test_stress_command_refuses_bad_options_by_name(capsys):
     from mjx_push.cli import main as cli_main
 

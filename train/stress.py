@@ -26,9 +26,13 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import hashlib
+import json
 import math
+import os
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -45,6 +49,7 @@ from mjx_push.train.networks import make_networks
 
 FORMAT = "mjx-push-stress"
 VERSION = 1
+PARTIAL_FORMAT = "mjx-push-stress-partial"
 ALL = "all"  # every row of the suite at once
 # The clean episodes with the observation noise (0.1 mm on the flange) redrawn: the simulation is
 # chaotic at that scale (docs/parity.md), so this row's drop is the floor under every other row's.
@@ -250,10 +255,87 @@ def episode_uniforms(seed: int, indices: np.ndarray) -> np.ndarray:
     return np.asarray(jax.vmap(lambda k: jax.random.uniform(k, (perturb.N_UNIFORMS,)))(keys), np.float64)
 
 
-def stress(policy, cfg: StressConfig = StressConfig(), progress: Callable[[str], None] | None = None) -> dict:
+# --- resuming ------------------------------------------------------------------------------------------
+def fingerprint(policy, cfg: StressConfig) -> str:
+    """What a stress run's episodes depend on: the policy's weights and configuration (the expert's
+    settings for the expert) and the suite's settings. A partial file resumes only a run with the same."""
+    h = hashlib.sha256()
+    h.update(json.dumps(dataclasses.asdict(cfg), sort_keys=True).encode())
+    h.update(repr(policy.config).encode())
+    for tree in (policy.actor_params, policy.encoder_params):
+        for leaf in jax.tree.leaves(jax.device_get(tree)):
+            a = np.ascontiguousarray(leaf)
+            h.update(f"{a.dtype}{a.shape}".encode())
+            h.update(a.tobytes())
+    return h.hexdigest()
+
+
+class Partial:
+    """The chunks of a stress run finished so far, in a JSON file rewritten (atomically) after each: a
+    run stopped by a session's end, a kill or a crash reruns with the same file and simulates only the
+    chunks it lacks. Each chunk's episodes are the same whichever run simulates them (the same
+    compiled batch and inputs), so a resumed run's record equals an uninterrupted one's."""
+
+    def __init__(self, path: Path, key: str):
+        self.path, self.key = Path(path), key
+        self.chunks: dict[str, dict] = {}
+        if self.path.exists():
+            try:
+                data = json.loads(self.path.read_text())
+            except (OSError, ValueError) as e:
+                raise ConfigError(f"{self.path}: not a readable stress partial file ({e}); move it away") from e
+            if data.get("format") != PARTIAL_FORMAT:
+                raise ConfigError(f"{self.path}: not a stress partial file (format {data.get('format')!r})")
+            if data.get("key") != key:
+                raise ConfigError(
+                    f"{self.path} holds a stress run of another policy or other settings: rerun with that run's "
+                    "policy and options to finish it, or move the file away to start this one"
+                )
+            self.chunks = data["chunks"]
+
+    def episodes(self) -> int:
+        return sum(len(c["success"]) for c in self.chunks.values())
+
+    def get(self, name: str) -> dict | None:
+        c = self.chunks.get(name)
+        if c is None:
+            return None
+        return {
+            "success": np.asarray(c["success"], bool),
+            "final_distance": np.asarray(c["final_distance"], np.float32),
+            "invalid": np.asarray(c["invalid"], bool),
+        }
+
+    def put(self, name: str, r: dict) -> None:
+        self.chunks[name] = {
+            "success": [bool(x) for x in r["success"]],
+            "final_distance": [float(x) for x in r["final_distance"]],  # float32 -> float64: exact
+            "invalid": [bool(x) for x in r["invalid"]],
+        }
+        tmp = self.path.with_name(self.path.name + ".tmp")
+        tmp.write_text(json.dumps({"format": PARTIAL_FORMAT, "key": self.key, "chunks": self.chunks}))
+        os.replace(tmp, self.path)
+
+
+def partial_path(out: Path) -> Path:
+    """Where a stress run writing `out` keeps its finished chunks until it ends."""
+    out = Path(out)
+    return out.with_name(out.name + ".partial")
+
+
+def stress(
+    policy,
+    cfg: StressConfig = StressConfig(),
+    progress: Callable[[str], None] | None = None,
+    resume_from: Path | None = None,
+) -> dict:
     """Run the suite on `policy` (a `mjx_push.train.runs.policies.Policy` or a
-    `mjx_push.train.evaluate.ExpertPolicy`). Returns a JSON-able record (`format_table` prints it)."""
+    `mjx_push.train.evaluate.ExpertPolicy`). Returns a JSON-able record (`format_table` prints it).
+    With `resume_from`, the chunks finished so far are kept in that file (`Partial`) and a rerun with
+    the same file simulates only what is missing (the caller removes it once the record is saved)."""
     t0 = time.perf_counter()
+    partial = None if resume_from is None else Partial(resume_from, fingerprint(policy, cfg))
+    resumed = 0 if partial is None else partial.episodes()
     expert = is_expert(policy)
     cells = cfg.cells()
     skipped = {}
@@ -285,10 +367,15 @@ def stress(policy, cfg: StressConfig = StressConfig(), progress: Callable[[str],
             records = [perturb.draw_episode(cells[c][2], uniforms[e]) for c, e in chunk]
             records = jax.tree.map(lambda *xs: np.stack(xs), *records)
             env_keys = np.stack([(redrawn if cells[c][0] == NOISE_FLOOR else keys)[e] for c, e in chunk])
-            batch_in = pad(jax.tree.map(lambda a: a[ep], params), env_keys, records, cfg.batch)
-            r = run_episodes(policy, env, geom, cfg.batch, *batch_in)
+            name = f"{shape}/{start}"
+            r = None if partial is None else partial.get(name)
+            if r is None:
+                batch_in = pad(jax.tree.map(lambda a: a[ep], params), env_keys, records, cfg.batch)
+                r = {k: v[: len(chunk)] for k, v in run_episodes(policy, env, geom, cfg.batch, *batch_in).items()}
+                if partial is not None:
+                    partial.put(name, r)
             for k in results:
-                results[k].append(r[k][: len(chunk)])
+                results[k].append(r[k])
             done += len(chunk)
             if progress is not None:
                 progress(f"{shape}: {done}/{total} episodes, {time.perf_counter() - t0:.0f} s")
@@ -322,7 +409,7 @@ def stress(policy, cfg: StressConfig = StressConfig(), progress: Callable[[str],
     realistic = [r["mean"]["success"] for r in rows if r["level"] == "realistic" and r["perturbation"] in SUITE]
     clean_mean = rows[0]["mean"]["success"]
     score = float(np.mean(realistic)) if realistic else None
-    return {
+    result = {
         "format": FORMAT,
         "version": VERSION,
         "policy": "expert" if expert else policy.config.agent,
@@ -335,8 +422,11 @@ def stress(policy, cfg: StressConfig = StressConfig(), progress: Callable[[str],
             "drop": None if score is None else clean_mean - score,
             "rows": len(realistic),
         },
+        # Of this process alone: a resumed run's earlier chunks ran before it (`resumed_episodes` of them).
         "wall_s": time.perf_counter() - t0,
+        "resumed_episodes": resumed,
     }
+    return result
 
 
 # --- tables -------------------------------------------------------------------------------------------

@@ -48,7 +48,10 @@ class Stress:
     out: Annotated[
         Path | None, tyro.conf.arg(metavar="PATH", help_behavior_hint="(default: stress.json beside the policy)")
     ] = None
-    """JSON with every cell's statistics and the score"""
+    """JSON with every cell's statistics and the score. Until the run ends, its finished chunks are
+    kept in PATH.partial: the same command rerun after a kill or a session's end resumes from them"""
+    fresh: bool = False
+    """discard PATH.partial (a stopped run's finished chunks) and start over"""
 
     def config(self):
         """The suite's `StressConfig` from the options (errors name the option)."""
@@ -86,16 +89,6 @@ class Stress:
             policy = ExpertPolicy(presets.make("vpm", self.preset or "cpu"))
         else:
             policy = resolve_policy(self.policy)
-        console = Console()
-        cells = len(cfg.cells())
-        console.print(
-            f"[bold]mjx-push stress[/] {self.policy}: {cells} cells x {len(cfg.shapes)} shapes x {cfg.episodes} "
-            f"episodes (setting {cfg.setting}, seed {cfg.seed}; the first batch includes JIT compilation)",
-            soft_wrap=True,
-        )
-        result = stress.stress(policy, cfg, progress=lambda line: console.print(f"  {line}", soft_wrap=True))
-        result["source"] = str(self.policy)
-        console.print(stress.format_table(result), markup=False, soft_wrap=True)
         out = self.out or (
             Path("outputs/stress-expert.json")
             if is_expert
@@ -104,6 +97,24 @@ class Stress:
         if str(self.policy).startswith("pretrained:") and self.out is None:
             out = Path(f"outputs/stress-{str(self.policy).split(':', 1)[1]}.json")
         out.parent.mkdir(parents=True, exist_ok=True)
+        partial = stress.partial_path(out)
+        if self.fresh and partial.exists():
+            partial.unlink()
+        console = Console()
+        cells = len(cfg.cells())
+        console.print(
+            f"[bold]mjx-push stress[/] {self.policy}: {cells} cells x {len(cfg.shapes)} shapes x {cfg.episodes} "
+            f"episodes (setting {cfg.setting}, seed {cfg.seed}; the first batch includes JIT compilation)",
+            soft_wrap=True,
+        )
+        if partial.exists():
+            console.print(f"  resuming from {partial} (--fresh starts over)", soft_wrap=True)
+        result = stress.stress(
+            policy, cfg, progress=lambda line: console.print(f"  {line}", soft_wrap=True), resume_from=partial
+        )
+        result["source"] = str(self.policy)
+        console.print(stress.format_table(result), markup=False, soft_wrap=True)
         out.write_text(json.dumps(result, indent=2) + "\n")
+        partial.unlink(missing_ok=True)  # the record holds every chunk now
         console.print(f"written {out} ({result['wall_s']:.0f} s)")
         return result
