@@ -256,10 +256,31 @@ def episode_uniforms(seed: int, indices: np.ndarray) -> np.ndarray:
 
 
 # --- resuming ------------------------------------------------------------------------------------------
+@functools.cache
+def _code_and_machine() -> str:
+    """The package's source, the versions of what simulates and compiles, and the device layout the
+    batches are split over: sub-millimetre outcomes depend on all of them (docs/parity.md)."""
+    import importlib.metadata as md
+
+    import mjx_push
+
+    h = hashlib.sha256()
+    for root in {Path(mjx_push.__file__).parent, Path(__file__).parent}:  # the scene and the learner
+        for f in sorted(root.rglob("*.py")):
+            h.update(f.name.encode())
+            h.update(f.read_bytes())
+    for pkg in ("jax", "jaxlib", "mujoco", "mujoco-mjx"):
+        h.update(f"{pkg}={md.version(pkg)}".encode())
+    h.update(f"{jax.default_backend()} {[d.device_kind for d in jax.devices()]}".encode())
+    return h.hexdigest()
+
+
 def fingerprint(policy, cfg: StressConfig) -> str:
     """What a stress run's episodes depend on: the policy's weights and configuration (the expert's
-    settings for the expert) and the suite's settings. A partial file resumes only a run with the same."""
+    settings for the expert), the suite's settings, the code, the packages and the devices. A partial
+    file resumes only a run with the same."""
     h = hashlib.sha256()
+    h.update(f"{VERSION} {_code_and_machine()}".encode())
     h.update(json.dumps(dataclasses.asdict(cfg), sort_keys=True).encode())
     h.update(repr(policy.config).encode())
     for tree in (policy.actor_params, policy.encoder_params):
@@ -284,12 +305,12 @@ class Partial:
                 data = json.loads(self.path.read_text())
             except (OSError, ValueError) as e:
                 raise ConfigError(f"{self.path}: not a readable stress partial file ({e}); move it away") from e
-            if data.get("format") != PARTIAL_FORMAT:
-                raise ConfigError(f"{self.path}: not a stress partial file (format {data.get('format')!r})")
+            if not isinstance(data, dict) or data.get("format") != PARTIAL_FORMAT or "chunks" not in data:
+                raise ConfigError(f"{self.path}: not a stress partial file; move it away")
             if data.get("key") != key:
                 raise ConfigError(
-                    f"{self.path} holds a stress run of another policy or other settings: rerun with that run's "
-                    "policy and options to finish it, or move the file away to start this one"
+                    f"{self.path} holds a stress run of another policy or other settings (or code, packages, "
+                    "devices): rerun that run's command to finish it, or start over (`--fresh`, or move the file)"
                 )
             self.chunks = data["chunks"]
 
@@ -312,7 +333,7 @@ class Partial:
             "final_distance": [float(x) for x in r["final_distance"]],  # float32 -> float64: exact
             "invalid": [bool(x) for x in r["invalid"]],
         }
-        tmp = self.path.with_name(self.path.name + ".tmp")
+        tmp = self.path.with_name(f"{self.path.name}.{os.getpid()}.tmp")
         tmp.write_text(json.dumps({"format": PARTIAL_FORMAT, "key": self.key, "chunks": self.chunks}))
         os.replace(tmp, self.path)
 
