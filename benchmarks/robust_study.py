@@ -154,6 +154,34 @@ def report(records: dict, study: Path = STUDY) -> list[str]:
     return out
 
 
+def training(study: Path = STUDY) -> list[str]:
+    """Every run's training record (docs/data/robust-v1/ARM/runs/egru-sSEED.json, written by `mjx-push
+    protocol`): how far it got and its final actor's clean success on the protocol's test episodes. A
+    run still training has its record in its worktree only (`protocol_at_commit` copies settled ones
+    back): here it has no record yet."""
+    lines = []
+    for arm, seed in runs(study):
+        shapes = _protocol(arm, study).get("shapes", [])
+        if not lines:
+            head = ["run", "status", "env steps", *[f"clean {s} (%)" for s in shapes], "clean mean (%)", "note"]
+            lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        path = study / arm / "runs" / f"egru-s{seed}.json"
+        if not path.exists():
+            lines.append("| " + " | ".join([f"{arm} s{seed}", "no record yet", "-", *["-"] * (len(shapes) + 2)]) + " |")
+            continue
+        try:
+            rec = json.loads(path.read_text())
+            status, steps = rec["status"], rec["env_steps"]
+            success = [rec["shapes"][s]["summary"]["success"]["mean"] for s in shapes] if status == "finished" else []
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            raise StudyError(f"{path}: not a readable run record ({type(e).__name__}: {e})") from e
+        cells = (
+            [_pct(x) for x in success] + [_pct(sum(success) / len(success))] if success else ["-"] * (len(shapes) + 1)
+        )
+        lines.append("| " + " | ".join([f"{arm} s{seed}", status, f"{steps:,}", *cells, rec.get("note", "")]) + " |")
+    return lines
+
+
 def block(study: Path = STUDY) -> str:
     records = load(study)
     rows, outcome = decision(records, study)
@@ -161,6 +189,9 @@ def block(study: Path = STUDY) -> str:
     table = "\n".join([head] + ["| " + " | ".join(r) + " |" for r in rows])
     return "\n\n".join(
         [
+            "The runs (each run's record; clean: its final actor on the protocol's 100 test episodes per shape, "
+            "success within 1 cm):",
+            "\n".join(training(study)),
             f"Selection episodes (seed {SELECTION_SEED:,}, realistic level, mean over shapes):",
             table,
             outcome,

@@ -113,3 +113,33 @@ def test_check_passes_after_write_and_fails_on_a_changed_number(tmp_path, monkey
 
 def test_the_committed_page_is_what_the_committed_records_print():
     assert rs.main(["--check"]) == 0
+
+
+def test_every_run_is_listed_with_its_training_record_or_as_having_none(tmp_path):
+    study = _study(tmp_path)
+    for arm in rs.ARMS:
+        proto = json.loads((study / arm / "protocol.json").read_text())
+        (study / arm / "protocol.json").write_text(json.dumps({**proto, "shapes": ["cylinder", "square"]}))
+    (study / "plain" / "runs").mkdir()
+    summary = lambda x: {"summary": {"success": {"mean": x, "sem": 0.0, "n": 100}}}  # noqa: E731
+    (study / "plain" / "runs" / "egru-s0.json").write_text(
+        json.dumps(
+            {
+                "status": "finished",
+                "env_steps": 128000,
+                "note": "resumed at 48,000 env steps",
+                "shapes": {"cylinder": summary(1.0), "square": summary(0.95)},
+            }
+        )
+    )
+    (study / "plain" / "runs" / "egru-s1.json").write_text(
+        json.dumps({"status": "training", "env_steps": 16000, "note": "training in runs/x"})
+    )
+    text = rs.block(study)
+    assert "| run | status | env steps | clean cylinder (%) | clean square (%) | clean mean (%) | note |" in text
+    assert "| plain s0 | finished | 128,000 | 100.0 | 95.0 | 97.5 | resumed at 48,000 env steps |" in text
+    assert "| plain s1 | training | 16,000 | - | - | - | training in runs/x |" in text
+    assert "| randomised s0 | no record yet | - | - | - | - | - |" in text
+    (study / "plain" / "runs" / "egru-s0.json").write_text(json.dumps({"status": "finished"}))
+    with pytest.raises(rs.StudyError, match="egru-s0.json: not a readable run record"):
+        rs.block(study)
