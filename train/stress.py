@@ -385,12 +385,12 @@ def stress(
         for start in range(0, len(jobs), cfg.batch):
             chunk = jobs[start : start + cfg.batch]
             ep = np.array([e for _, e in chunk])
-            records = [perturb.draw_episode(cells[c][2], uniforms[e]) for c, e in chunk]
-            records = jax.tree.map(lambda *xs: np.stack(xs), *records)
-            env_keys = np.stack([(redrawn if cells[c][0] == NOISE_FLOOR else keys)[e] for c, e in chunk])
             name = f"{shape}/{start}"
             r = None if partial is None else partial.get(name)
-            if r is None:
+            if r is None:  # a chunk the partial file lacks: draw its inputs and simulate it
+                records = [perturb.draw_episode(cells[c][2], uniforms[e]) for c, e in chunk]
+                records = jax.tree.map(lambda *xs: np.stack(xs), *records)
+                env_keys = np.stack([(redrawn if cells[c][0] == NOISE_FLOOR else keys)[e] for c, e in chunk])
                 batch_in = pad(jax.tree.map(lambda a: a[ep], params), env_keys, records, cfg.batch)
                 r = {k: v[: len(chunk)] for k, v in run_episodes(policy, env, geom, cfg.batch, *batch_in).items()}
                 if partial is not None:
