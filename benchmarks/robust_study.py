@@ -5,19 +5,22 @@
     python -m benchmarks.robust_study --write     # rewrite them between docs/robust-training.md's markers
     python -m benchmarks.robust_study --check     # exit 1 if the page is not what the records print
 
-Records live in docs/data/robust-v1/stress/<arm>-s<seed>-<episodes>.json: `mjx-push stress` of that
-run's final actor at the realistic level, on the selection episodes (seed 3,100,019: the decision's
-inputs) or the protocol's test episodes (its `test_seed`: the report). `add` names the episodes from
-the record's own seed and refuses a record of any other seed or without the realistic level. The
-rule is the page's, fixed before the runs: the randomised arm's seed-0 actor ships when its arm's mean
-robustness score is above the plain arm's and its mean clean success at most 2 points below; until
-every selection record is in, the decision says what is missing.
+Records live in docs/data/robust-v1/stress/<arm>-s<seed>[-<label>]-<episodes>.json: `mjx-push stress`
+of that run's final actor (or, with a label, of its rerun's: `<arm>/reruns/egru-s<seed>-<label>.json`)
+at the realistic level, on the selection episodes (seed 3,100,019: the decision's inputs) or the
+protocol's test episodes (its `test_seed`: the report). `add` names the episodes from the record's own
+seed and refuses a record of any other seed or without the realistic level. The rule is the page's,
+fixed before the runs: the randomised arm's seed-0 actor ships when its arm's mean robustness score is
+above the plain arm's and its mean clean success at most 2 points below; until every selection record
+is in, the decision says what is missing. A seed's records are its own actor's where they exist, else
+its rerun's (the page's amendment: an actor lost before it was stressed).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 from pathlib import Path
 
@@ -33,6 +36,11 @@ ARMS = ("plain", "randomised")
 SELECTION_SEED = 3_100_019
 CLEAN_MARGIN = 0.02  # the rule: clean success at most 2 points below the plain arm's
 TARGET_DROP = 0.05  # the issue's target, reported only: at most 5 points lost on any row
+KINDS = ("select", "test")
+_LABEL = re.compile(r"[a-z0-9]+(?:-[a-z0-9]+)*")
+_STRESS_FILE = re.compile(
+    r"(?P<arm>[a-z]+)-s(?P<seed>0|[1-9][0-9]*)(?:-(?P<label>[a-z0-9]+(?:-[a-z0-9]+)*))?-(?P<kind>select|test)\.json"
+)
 
 
 class StudyError(ValueError):
@@ -68,19 +76,50 @@ def episodes_of(record: dict, test_seed: int, where: str) -> str:
     )
 
 
-def load(study: Path = STUDY) -> dict[tuple[str, int, str], dict]:
-    """(arm, seed, "select" | "test") -> record, for every record the study folder holds."""
-    out = {}
+def reruns(study: Path = STUDY) -> list[tuple[str, int, str]]:
+    """(arm, seed, label) of every rerun record (ARM/reruns/egru-sSEED-LABEL.json) of a run of the study."""
+    out = []
     for arm, seed in runs(study):
-        test_seed = _protocol(arm, study)["test_seed"]
-        for kind in ("select", "test"):
-            path = study / "stress" / f"{arm}-s{seed}-{kind}.json"
-            if path.exists():
-                record = json.loads(path.read_text())
-                if episodes_of(record, test_seed, str(path)) != kind:
-                    raise StudyError(f"{path}: its episodes are not the file name's ({kind})")
-                out[(arm, seed, kind)] = record
+        for path in sorted((study / arm / "reruns").glob(f"egru-s{seed}-*.json")):
+            label = path.stem.removeprefix(f"egru-s{seed}-")
+            if _LABEL.fullmatch(label):
+                out.append((arm, seed, label))
     return out
+
+
+def _name(arm: str, seed: int, label: str | None) -> str:
+    return f"{arm} s{seed}" + (f" (rerun {label})" if label else "")
+
+
+def load(study: Path = STUDY) -> dict[tuple[str, int, str | None, str], dict]:
+    """(arm, seed, rerun label or None, "select" | "test") -> record, for every record the study folder
+    holds; a file named for no run or rerun of the study, or whose episodes are not its name's, is refused."""
+    known = {(arm, seed, None) for arm, seed in runs(study)} | set(reruns(study))
+    out = {}
+    for path in sorted((study / "stress").glob("*.json")):
+        m = _STRESS_FILE.fullmatch(path.name)
+        key = (m["arm"], int(m["seed"]), m["label"]) if m else None
+        if key not in known:
+            raise StudyError(
+                f"{path}: not the record of a run or rerun of the study (ARM-sSEED[-LABEL]-select|test.json, the "
+                "rerun's record in ARM/reruns/)"
+            )
+        record = json.loads(path.read_text())
+        if episodes_of(record, _protocol(key[0], study)["test_seed"], str(path)) != m["kind"]:
+            raise StudyError(f"{path}: its episodes are not the file name's ({m['kind']})")
+        out[(*key, m["kind"])] = record
+    return out
+
+
+def standing(records: dict, arm: str, seed: int, kind: str) -> tuple[str | None, dict] | None:
+    """The record that stands for run (arm, seed) on those episodes: its own actor's, else its rerun's
+    (None when neither is in); two reruns' records with none of the run's own are refused."""
+    if (arm, seed, None, kind) in records:
+        return None, records[(arm, seed, None, kind)]
+    theirs = [(k[2], r) for k, r in records.items() if k[:2] == (arm, seed) and k[3] == kind]
+    if len(theirs) > 1:
+        raise StudyError(f"{arm} s{seed}: {kind} records of reruns {[x[0] for x in theirs]}: the study reads one")
+    return theirs[0] if theirs else None
 
 
 def _pct(x: float) -> str:
@@ -99,18 +138,22 @@ def decision(records: dict, study: Path = STUDY) -> tuple[list[list[str]], str]:
         for a, seed in runs(study):
             if a != arm:
                 continue
-            record = records.get((arm, seed, "select"))
-            if record is None:
+            found = standing(records, arm, seed, "select")
+            if found is None:
                 rows.append([f"{arm} s{seed}", "not yet stressed", "-"])
                 continue
-            clean, score = _clean_and_score(record)
+            clean, score = _clean_and_score(found[1])
             got.append((clean, score))
-            rows.append([f"{arm} s{seed}", _pct(clean), _pct(score)])
+            rows.append([_name(arm, seed, found[0]), _pct(clean), _pct(score)])
         seeds = sum(1 for a, _ in runs(study) if a == arm)
         if got and len(got) == seeds:
             means[arm] = tuple(sum(x[i] for x in got) / len(got) for i in range(2))
             rows.append([f"**{arm}, mean**", _pct(means[arm][0]), _pct(means[arm][1])])
-    missing = [f"{a} s{s}" for a, s in runs(study) if (a, s, "select") not in records]
+    for (arm, seed, label, kind), record in records.items():  # shown, not read: its run's own record stands
+        if kind == "select" and label is not None and (arm, seed, None, kind) in records:
+            clean, score = _clean_and_score(record)
+            rows.append([f"{_name(arm, seed, label)}, not read by the rule", _pct(clean), _pct(score)])
+    missing = [f"{a} s{s}" for a, s in runs(study) if standing(records, a, s, "select") is None]
     if missing:
         return rows, f"Decision pending: no selection record yet for {', '.join(missing)}."
     (clean_p, score_p), (clean_r, score_r) = means["plain"], means["randomised"]
@@ -124,22 +167,23 @@ def decision(records: dict, study: Path = STUDY) -> tuple[list[list[str]], str]:
 
 
 def report(records: dict, study: Path = STUDY) -> list[str]:
-    """The test-seed stress table of every run (pending ones named) and the target read on the
-    randomised seed-0 run."""
+    """The test-seed stress table of every run and rerun (pending runs named) and the target read on the
+    actor that stands for randomised seed 0."""
     from mjx_push.train.stress import format_summary
 
     named = [
-        {**records[(arm, seed, "test")], "policy": f"{arm}-s{seed}"}
-        for arm, seed in runs(study)
-        if (arm, seed, "test") in records
+        {**record, "policy": f"{arm}-s{seed}" + (f"-{label}" if label else "")}
+        for (arm, seed, label, kind), record in sorted(records.items(), key=lambda kv: (kv[0][:2], kv[0][2] or ""))
+        if kind == "test"
     ]
-    missing = [f"{a} s{s}" for a, s in runs(study) if (a, s, "test") not in records]
+    missing = [f"{a} s{s}" for a, s in runs(study) if standing(records, a, s, "test") is None]
     out = [format_summary(named)] if named else []
     if missing:
         out.append(f"Not yet stressed on the test episodes: {', '.join(missing)}.")
-    candidate = records.get(("randomised", 0, "test"))
-    plain = [records[("plain", s, "test")] for a, s in runs(study) if a == "plain" and ("plain", s, "test") in records]
+    candidate = standing(records, "randomised", 0, "test")
+    plain = [found[1] for a, s in runs(study) if a == "plain" and (found := standing(records, a, s, "test"))]
     if candidate is not None and plain:
+        label, candidate = candidate
         at = [r for r in candidate["rows"] if r["level"] == "realistic" and not r.get("skipped")]
         worst = max(at, key=lambda r: candidate["score"]["clean"] - r["mean"]["success"])
         drop = candidate["score"]["clean"] - worst["mean"]["success"]
@@ -147,9 +191,9 @@ def report(records: dict, study: Path = STUDY) -> list[str]:
         gap = clean_plain - candidate["score"]["clean"]
         met = drop <= TARGET_DROP and gap <= CLEAN_MARGIN
         out.append(
-            f"Target (randomised s0, test episodes): {'met' if met else 'not met'}: its largest loss from clean is "
-            f"{_pct(drop)} points ({worst['perturbation']}; at most {100 * TARGET_DROP:g}), its clean success "
-            f"{_pct(gap)} points below the plain arm's mean (at most {100 * CLEAN_MARGIN:g})."
+            f"Target ({_name('randomised', 0, label)}, test episodes): {'met' if met else 'not met'}: its largest "
+            f"loss from clean is {_pct(drop)} points ({worst['perturbation']}; at most {100 * TARGET_DROP:g}), its "
+            f"clean success {_pct(gap)} points below the plain arm's mean (at most {100 * CLEAN_MARGIN:g})."
         )
     return out
 
@@ -160,12 +204,15 @@ def training(study: Path = STUDY) -> list[str]:
     run still training has its record in its worktree only (`protocol_at_commit` copies settled ones
     back): here it has no record yet."""
     lines = []
-    for arm, seed in runs(study):
+    rows = [(arm, seed, None) for arm, seed in runs(study)] + reruns(study)
+    for arm, seed, label in sorted(rows, key=lambda r: (ARMS.index(r[0]), r[1], r[2] or "")):
         shapes = _protocol(arm, study).get("shapes", [])
         if not lines:
             head = ["run", "status", "env steps", *[f"clean {s} (%)" for s in shapes], "clean mean (%)", "note"]
             lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-        path = study / arm / "runs" / f"egru-s{seed}.json"
+        path = (
+            study / arm / ("reruns" if label else "runs") / (f"egru-s{seed}" + (f"-{label}" if label else "") + ".json")
+        )
         if not path.exists():
             lines.append("| " + " | ".join([f"{arm} s{seed}", "no record yet", "-", *["-"] * (len(shapes) + 2)]) + " |")
             continue
@@ -178,7 +225,8 @@ def training(study: Path = STUDY) -> list[str]:
         cells = (
             [_pct(x) for x in success] + [_pct(sum(success) / len(success))] if success else ["-"] * (len(shapes) + 1)
         )
-        lines.append("| " + " | ".join([f"{arm} s{seed}", status, f"{steps:,}", *cells, rec.get("note", "")]) + " |")
+        cols = [_name(arm, seed, label), status, f"{steps:,}", *cells, rec.get("note", "")]
+        lines.append("| " + " | ".join(cols) + " |")
     return lines
 
 
@@ -205,14 +253,20 @@ def splice(page: str, body: str) -> str:
     return generated_block.splice(page, body, BEGIN, END, PAGE.name, StudyError)
 
 
-def add(record_path: Path, arm: str, seed: int, study: Path = STUDY) -> Path:
-    """Keep `record_path` as the study's record of run (arm, seed); refused when the study has no such
-    run or the record's episodes are neither the selection's nor the test's."""
+def add(record_path: Path, arm: str, seed: int, study: Path = STUDY, rerun: str | None = None) -> Path:
+    """Keep `record_path` as the study's record of run (arm, seed), or of its rerun `rerun`; refused when
+    the study has no such run or rerun record, or the record's episodes are neither the selection's nor
+    the test's."""
     if (arm, seed) not in runs(study):
         raise StudyError(f"{arm} s{seed} is not a run of study robust-v1 ({runs(study)})")
+    if rerun is not None and (arm, seed, rerun) not in reruns(study):
+        raise StudyError(
+            f"--rerun {rerun!r}: no rerun record {study / arm / 'reruns' / f'egru-s{seed}-{rerun}.json'} "
+            "(labels: a-z, 0-9 and -)"
+        )
     record = json.loads(record_path.read_text())
     kind = episodes_of(record, _protocol(arm, study)["test_seed"], str(record_path))
-    out = study / "stress" / f"{arm}-s{seed}-{kind}.json"
+    out = study / "stress" / (f"{arm}-s{seed}" + (f"-{rerun}" if rerun else "") + f"-{kind}.json")
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(_trim(record), indent=1) + "\n")
     return out
@@ -224,6 +278,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("record", nargs="?", type=Path)
     p.add_argument("--arm", choices=ARMS)
     p.add_argument("--seed", type=int)
+    p.add_argument(
+        "--rerun", metavar="LABEL", help="the record is of that run's rerun (ARM/reruns/egru-sSEED-LABEL.json)"
+    )
     mode = p.add_mutually_exclusive_group()
     mode.add_argument("--write", action="store_true")
     mode.add_argument("--check", action="store_true")
@@ -232,7 +289,7 @@ def main(argv: list[str] | None = None) -> int:
         if a.action == "add":
             if a.record is None or a.arm is None or a.seed is None:
                 p.error("add needs RECORD, --arm and --seed")
-            print(f"written {add(a.record, a.arm, a.seed, STUDY)}")
+            print(f"written {add(a.record, a.arm, a.seed, STUDY, a.rerun)}")
         body = block(STUDY)
         if not (a.write or a.check or a.action):
             print(body)

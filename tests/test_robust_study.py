@@ -143,3 +143,58 @@ def test_every_run_is_listed_with_its_training_record_or_as_having_none(tmp_path
     (study / "plain" / "runs" / "egru-s0.json").write_text(json.dumps({"status": "finished"}))
     with pytest.raises(rs.StudyError, match="egru-s0.json: not a readable run record"):
         rs.block(study)
+
+
+def _rerun(study, arm, seed, label="machine2", success=0.9):
+    summary = {"summary": {"success": {"mean": success, "sem": 0.0, "n": 100}}}
+    path = study / arm / "reruns" / f"egru-s{seed}-{label}.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    record = {"status": "finished", "env_steps": 128000, "note": "trained again", "shapes": {"cylinder": summary}}
+    path.write_text(json.dumps(record))
+
+
+def test_a_lost_actor_is_stood_for_by_its_reruns_records_and_its_own_records_win(tmp_path):
+    study = _study(tmp_path)
+    for arm in rs.ARMS:
+        proto = json.loads((study / arm / "protocol.json").read_text())
+        (study / arm / "protocol.json").write_text(json.dumps({**proto, "shapes": ["cylinder"]}))
+    record = _record(0.9, {"mass": 0.9})
+    path = tmp_path / "r.json"
+    path.write_text(json.dumps(record))
+    with pytest.raises(rs.StudyError, match="--rerun 'machine2': no rerun record .*egru-s0-machine2.json"):
+        rs.add(path, "randomised", 0, study, rerun="machine2")
+    _rerun(study, "randomised", 0)
+    _rerun(study, "plain", 0, success=0.8)
+    _add(study, tmp_path, "plain", 0, _record(0.95, {"latency": 0.80, "mass": 0.90}))
+    _add(study, tmp_path, "plain", 1, _record(0.95, {"latency": 0.80, "mass": 0.90}))
+    _add(study, tmp_path, "randomised", 1, _record(0.94, {"latency": 0.90, "mass": 0.92}))
+    assert "no selection record yet for randomised s0." in rs.block(study)
+    kept = rs.add(path, "randomised", 0, study, rerun="machine2")
+    assert kept.name == "randomised-s0-machine2-select.json"
+    path.write_text(json.dumps(_record(0.94, {"latency": 0.90, "mass": 0.92})))
+    rs.add(path, "randomised", 0, study, rerun="machine2")
+    text = rs.block(study)
+    assert "| randomised s0 (rerun machine2) | 94.0 | 91.0 |" in text
+    assert "Decision: the randomised eGRU ships" in text
+    # the rerun of a run stressed before its actor was lost is shown, and the run's own record stands
+    path.write_text(json.dumps(_record(0.50, {"latency": 0.10, "mass": 0.10})))
+    rs.add(path, "plain", 0, study, rerun="machine2")
+    text = rs.block(study)
+    assert "| plain s0 (rerun machine2), not read by the rule | 50.0 | 10.0 |" in text
+    assert "| **plain, mean** | 95.0 | 85.0 |" in text and "Decision: the randomised eGRU ships" in text
+    # on the test episodes the reruns stand for seed 0 and the target reads randomised s0's rerun
+    path.write_text(json.dumps(_record(0.96, {"latency": 0.80, "mass": 0.90}, seed=TEST_SEED)))
+    rs.add(path, "plain", 0, study, rerun="machine2")
+    path.write_text(json.dumps(_record(0.95, {"latency": 0.93, "mass": 0.91}, seed=TEST_SEED)))
+    rs.add(path, "randomised", 0, study, rerun="machine2")
+    text = rs.block(study)
+    assert "| plain-s0-machine2 | 96 |" in text and "| randomised-s0-machine2 | 95 |" in text
+    assert "Not yet stressed on the test episodes: plain s1, randomised s1." in text
+    assert "Target (randomised s0 (rerun machine2), test episodes): met: its largest loss from clean is 4.0" in text
+    # the training table lists each rerun's record beside its run's
+    assert "| plain s0 (rerun machine2) | finished | 128,000 | 80.0 | 80.0 | trained again |" in text
+    assert "| randomised s0 | no record yet |" in text
+    # a file in the stress folder named for nothing the study knows is refused by name
+    (study / "stress" / "plain-s0-laptop-test.json").write_text(json.dumps(record))
+    with pytest.raises(rs.StudyError, match="plain-s0-laptop-test.json: not the record of a run or rerun"):
+        rs.block(study)
