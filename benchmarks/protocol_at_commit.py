@@ -2,6 +2,7 @@
 
     python -m benchmarks.protocol_at_commit docs/data/comparison-v1 --commit 6b6cab9 --out OUT [--jobs 1]
     python -m benchmarks.protocol_at_commit docs/data/comparison-v1 --commit 6b6cab9 --out OUT --sync
+    python -m benchmarks.protocol_at_commit docs/data/robust-v1/plain --commit eeee9bd --out OUT2 --rerun egru:0:machine2
 
 A protocol's runs all train from one commit (docs/comparison-protocol.md), while later commits move
 the code that reads their records. This keeps the two apart: a git worktree of COMMIT in
@@ -11,6 +12,11 @@ Before the runs, the records this checkout already holds are copied into the wor
 are not redone); after them, and with `--sync` at any time, records the worktree has and this checkout
 lacks are copied back, to be committed. A protocol.json that differs between the two, or a record
 that exists on both sides with other contents, is refused and nothing is copied.
+
+`--rerun AGENT:SEED:LABEL` trains one run again (its actor was lost with its machine) in an --out of
+its own, whose worktree holds no record of the protocol, and keeps the finished record as
+FOLDER/reruns/AGENT-sSEED-LABEL.json with a note saying why (and where it resumed); the run's own
+record is left alone. Rerun the same command to resume it.
 """
 
 from __future__ import annotations
@@ -18,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import subprocess
 import sys
 import sysconfig
@@ -117,6 +124,76 @@ def environment(commit: str, out: Path, tree: Path) -> Path:
     return python
 
 
+RERUN_NOTE = (
+    "trained again from the same commit, preset and seed on another machine, because the original run's actor "
+    "was lost with its machine"
+)
+_RERUN = re.compile(r"(?P<agent>[a-z]+):(?P<seed>0|[1-9][0-9]*):(?P<label>[a-z0-9]+(?:-[a-z0-9]+)*)")
+
+
+def parse_rerun(text: str) -> tuple[str, int, str]:
+    m = _RERUN.fullmatch(text)
+    if m is None:
+        raise CommitError(f"--rerun must be AGENT:SEED:LABEL (label: a-z, 0-9 and -), got {text!r}")
+    return m["agent"], int(m["seed"]), m["label"]
+
+
+def rerun_target(folder: Path, agent: str, seed: int, label: str) -> Path:
+    return folder / "reruns" / f"{agent}-s{seed}-{label}.json"
+
+
+def check_rerun_tree(tree_folder: Path, agent: str, seed: int) -> None:
+    """A rerun trains in a worktree of its own: one that holds any other record of the protocol is
+    the protocol's own (or another rerun's), whose finished run would be reused instead of trained."""
+    others = [name for name in records(tree_folder) if name != f"runs/{agent}-s{seed}.json"]
+    if others:
+        raise CommitError(
+            f"{tree_folder} holds the protocol's records ({', '.join(others)}): a rerun trains in an --out of its own"
+        )
+
+
+def keep_rerun(tree_folder: Path, folder: Path, out: Path, agent: str, seed: int, label: str) -> Path | None:
+    """The rerun's finished record, copied from the worktree to FOLDER/reruns/ with its note; None while
+    it is not finished. An existing rerun record with other contents is refused, never overwritten."""
+    source = tree_folder / "runs" / f"{agent}-s{seed}.json"
+    if not source.exists() or not _settled(source):
+        return None
+    record = json.loads(source.read_text())
+    note = RERUN_NOTE
+    summary = out / "runs" / f"{agent}-s{seed}" / "summary.json"
+    resumed = json.loads(summary.read_text()).get("resumed_from_env_steps") if summary.exists() else None
+    if resumed:
+        note += f"; resumed at {resumed:,} env steps (its summary.json): train wall is the last segment's"
+    if record.get("note"):
+        note += f"; {record['note']}"
+    text = json.dumps({**record, "note": note}, indent=1) + "\n"
+    target = rerun_target(folder, agent, seed, label)
+    if target.exists() and target.read_text() != text:
+        raise CommitError(f"{target} exists with other contents (nothing copied)")
+    target.parent.mkdir(parents=True, exist_ok=True)
+    target.write_text(text)
+    return target
+
+
+def rerun(folder: Path, rel: Path, commit: str, out: Path, spec: str, sync: bool) -> int:
+    agent, seed, label = parse_rerun(spec)
+    target = rerun_target(folder, agent, seed, label)
+    if target.exists() and _settled(target):
+        print(f"{target.relative_to(REPO)}: already recorded, nothing redone")
+        return 0
+    tree = worktree(commit, out)
+    check_rerun_tree(tree / rel, agent, seed)
+    code = 0
+    if not sync:
+        python = environment(commit, out, tree)
+        cmd = [str(python.parent / "mjx-push"), "protocol", str(rel), "--out", str(out), "--job", f"{agent}:{seed}"]
+        print(f"rerunning at {commit}: {' '.join(cmd)} (in {tree})", flush=True)
+        code = subprocess.run(cmd, cwd=tree, env={**os.environ, "PYTHONPATH": ""}).returncode
+    kept = keep_rerun(tree / rel, folder, out, agent, seed, label)
+    print(f"new record, to commit: {kept.relative_to(REPO)}" if kept else f"{agent} s{seed}: no finished record yet")
+    return code
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument(
@@ -126,12 +203,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", type=Path, required=True, help="where the worktree, its environment and the runs live")
     p.add_argument("--jobs", type=int, default=1)
     p.add_argument("--sync", action="store_true", help="only copy the worktree's new records back")
+    p.add_argument("--rerun", metavar="AGENT:SEED:LABEL", help="train that run again in an --out of its own")
     a = p.parse_args(argv)
     folder = a.folder.resolve()
     try:
         rel = folder.relative_to(REPO)
         out = a.out.resolve()
         out.mkdir(parents=True, exist_ok=True)
+        if a.rerun is not None:
+            return rerun(folder, rel, a.commit, out, a.rerun, a.sync)
         tree = worktree(a.commit, out)
         if not a.sync:
             for name in copy_records(folder, tree / rel):

@@ -91,3 +91,33 @@ def test_the_environment_imports_the_commits_code_not_the_checkouts(tmp_path, mo
     assert pac.worktree(first[:7], out) == tree  # made once
     with pytest.raises(pac.CommitError, match="not a commit"):
         pac.worktree("nope123", out)
+
+
+def test_a_rerun_trains_apart_and_is_kept_under_reruns_with_its_note(tmp_path):
+    assert pac.parse_rerun("egru:0:machine2") == ("egru", 0, "machine2")
+    for bad in ("egru:0", "egru:x:m", "egru:0:Machine 2"):
+        with pytest.raises(pac.CommitError, match="--rerun must be AGENT:SEED:LABEL"):
+            pac.parse_rerun(bad)
+    main = _folder(tmp_path / "main", **{"runs__egru-s0.json": {"status": "finished", "note": ""}})
+    # the protocol's own worktree holds its records: its finished run would be reused, not trained again
+    own = _folder(tmp_path / "own", **{"runs__egru-s0.json": {"status": "finished"}})
+    with pytest.raises(pac.CommitError, match=r"holds the protocol's records \(runs/egru-s0.json\)"):
+        pac.check_rerun_tree(own, "egru", 1)
+    tree = _folder(tmp_path / "tree", **{"runs__egru-s0.json": {"status": "training"}})
+    pac.check_rerun_tree(tree, "egru", 0)  # its own run, still training: resumed there
+    out = tmp_path / "out"
+    assert pac.keep_rerun(tree, main, out, "egru", 0, "machine2") is None
+    (tree / "runs/egru-s0.json").write_text(json.dumps({"status": "finished", "env_steps": 128000, "note": ""}))
+    (out / "runs/egru-s0").mkdir(parents=True)
+    (out / "runs/egru-s0/summary.json").write_text(json.dumps({"resumed_from_env_steps": 48000}))
+    kept = pac.keep_rerun(tree, main, out, "egru", 0, "machine2")
+    assert kept == main / "reruns/egru-s0-machine2.json"
+    record = json.loads(kept.read_text())
+    assert record["status"] == "finished" and record["note"].startswith(pac.RERUN_NOTE)
+    assert "resumed at 48,000 env steps" in record["note"]
+    assert json.loads((main / "runs/egru-s0.json").read_text()) == {"status": "finished", "note": ""}  # left alone
+    assert pac.keep_rerun(tree, main, out, "egru", 0, "machine2") == kept  # the same record again: no change
+    (tree / "runs/egru-s0.json").write_text(json.dumps({"status": "finished", "env_steps": 99}))
+    with pytest.raises(pac.CommitError, match="egru-s0-machine2.json exists with other contents"):
+        pac.keep_rerun(tree, main, out, "egru", 0, "machine2")
+    assert json.loads(kept.read_text())["env_steps"] == 128000
