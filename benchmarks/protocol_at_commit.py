@@ -142,21 +142,46 @@ def rerun_target(folder: Path, agent: str, seed: int, label: str) -> Path:
     return folder / "reruns" / f"{agent}-s{seed}-{label}.json"
 
 
-def check_rerun_tree(tree_folder: Path, agent: str, seed: int) -> None:
-    """A rerun trains in a worktree of its own: one that holds any other record of the protocol is
-    the protocol's own (or another rerun's), whose finished run would be reused instead of trained."""
-    others = [name for name in records(tree_folder) if name != f"runs/{agent}-s{seed}.json"]
+def claim_rerun_out(out: Path, spec: str, rel: Path) -> None:
+    """OUT/rerun.json marks OUT as this rerun's: an OUT that already holds a worktree or runs without it
+    (the protocol's own, whose finished run would be reused) or marked for another rerun is refused."""
+    marker, mine = out / "rerun.json", {"rerun": spec, "folder": str(rel)}
+    if marker.exists():
+        if json.loads(marker.read_text()) != mine:
+            raise CommitError(f"{out} is another rerun's ({marker.read_text().strip()}): choose another --out")
+        return
+    used = sorted(p.name for p in out.iterdir() if p.name.startswith("worktree-") or p.name == "runs")
+    if used:
+        raise CommitError(f"{out} already holds {', '.join(used)}: a rerun trains in an --out of its own")
+    marker.write_text(json.dumps(mine) + "\n")
+
+
+def check_rerun_tree(tree_folder: Path, folder: Path, agent: str, seed: int) -> None:
+    """A rerun trains in a worktree of its own: one that holds any other record of the protocol, or the
+    run's own record as the checkout has it, is the protocol's (its finished run would be reused)."""
+    own = f"runs/{agent}-s{seed}.json"
+    others = [name for name in records(tree_folder) if name != own]
     if others:
         raise CommitError(
             f"{tree_folder} holds the protocol's records ({', '.join(others)}): a rerun trains in an --out of its own"
         )
+    if (folder / own).exists() and (tree_folder / own).exists():
+        if (folder / own).read_bytes() == (tree_folder / own).read_bytes():
+            raise CommitError(
+                f"{tree_folder / own} is the original run's record: a rerun trains in an --out of its own"
+            )
+
+
+def _finished(path: Path) -> bool:
+    return path.exists() and json.loads(path.read_text()).get("status") == "finished"
 
 
 def keep_rerun(tree_folder: Path, folder: Path, out: Path, agent: str, seed: int, label: str) -> Path | None:
     """The rerun's finished record, copied from the worktree to FOLDER/reruns/ with its note; None while
-    it is not finished. An existing rerun record with other contents is refused, never overwritten."""
+    it has not finished (a failed one stays in the worktree and the same command trains it again). An
+    existing rerun record with other contents is refused, never overwritten."""
     source = tree_folder / "runs" / f"{agent}-s{seed}.json"
-    if not source.exists() or not _settled(source):
+    if not _finished(source):
         return None
     record = json.loads(source.read_text())
     note = RERUN_NOTE
@@ -178,11 +203,12 @@ def keep_rerun(tree_folder: Path, folder: Path, out: Path, agent: str, seed: int
 def rerun(folder: Path, rel: Path, commit: str, out: Path, spec: str, sync: bool) -> int:
     agent, seed, label = parse_rerun(spec)
     target = rerun_target(folder, agent, seed, label)
-    if target.exists() and _settled(target):
-        print(f"{target.relative_to(REPO)}: already recorded, nothing redone")
+    if _finished(target):
+        print(f"{target}: already recorded, nothing redone")
         return 0
+    claim_rerun_out(out, spec, rel)
     tree = worktree(commit, out)
-    check_rerun_tree(tree / rel, agent, seed)
+    check_rerun_tree(tree / rel, folder, agent, seed)
     code = 0
     if not sync:
         python = environment(commit, out, tree)
@@ -190,7 +216,12 @@ def rerun(folder: Path, rel: Path, commit: str, out: Path, spec: str, sync: bool
         print(f"rerunning at {commit}: {' '.join(cmd)} (in {tree})", flush=True)
         code = subprocess.run(cmd, cwd=tree, env={**os.environ, "PYTHONPATH": ""}).returncode
     kept = keep_rerun(tree / rel, folder, out, agent, seed, label)
-    print(f"new record, to commit: {kept.relative_to(REPO)}" if kept else f"{agent} s{seed}: no finished record yet")
+    if kept:
+        print(f"new record, to commit: {kept}")
+    else:
+        state = tree / rel / "runs" / f"{agent}-s{seed}.json"
+        status = json.loads(state.read_text()) if state.exists() else {"status": "not started"}
+        print(f"{agent} s{seed}: {status.get('status')}, not recorded ({status.get('note', '')})")
     return code
 
 

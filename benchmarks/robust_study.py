@@ -38,6 +38,7 @@ CLEAN_MARGIN = 0.02  # the rule: clean success at most 2 points below the plain 
 TARGET_DROP = 0.05  # the issue's target, reported only: at most 5 points lost on any row
 KINDS = ("select", "test")
 _LABEL = re.compile(r"[a-z0-9]+(?:-[a-z0-9]+)*")
+_RERUN_FILE = re.compile(r"egru-s(?P<seed>0|[1-9][0-9]*)-(?P<label>[a-z0-9]+(?:-[a-z0-9]+)*)\.json")
 _STRESS_FILE = re.compile(
     r"(?P<arm>[a-z]+)-s(?P<seed>0|[1-9][0-9]*)(?:-(?P<label>[a-z0-9]+(?:-[a-z0-9]+)*))?-(?P<kind>select|test)\.json"
 )
@@ -77,13 +78,15 @@ def episodes_of(record: dict, test_seed: int, where: str) -> str:
 
 
 def reruns(study: Path = STUDY) -> list[tuple[str, int, str]]:
-    """(arm, seed, label) of every rerun record (ARM/reruns/egru-sSEED-LABEL.json) of a run of the study."""
-    out = []
-    for arm, seed in runs(study):
-        for path in sorted((study / arm / "reruns").glob(f"egru-s{seed}-*.json")):
-            label = path.stem.removeprefix(f"egru-s{seed}-")
-            if _LABEL.fullmatch(label):
-                out.append((arm, seed, label))
+    """(arm, seed, label) of every rerun record (ARM/reruns/egru-sSEED-LABEL.json); a file there named
+    for no run of the study is refused by name."""
+    out, known = [], set(runs(study))
+    for arm in ARMS:
+        for path in sorted((study / arm / "reruns").glob("*.json")):
+            m = _RERUN_FILE.fullmatch(path.name)
+            if m is None or (arm, int(m["seed"])) not in known:
+                raise StudyError(f"{path}: not the rerun record of a run of the study (egru-sSEED-LABEL.json)")
+            out.append((arm, int(m["seed"]), m["label"]))
     return out
 
 
@@ -158,7 +161,9 @@ def decision(records: dict, study: Path = STUDY) -> tuple[list[list[str]], str]:
         return rows, f"Decision pending: no selection record yet for {', '.join(missing)}."
     (clean_p, score_p), (clean_r, score_r) = means["plain"], means["randomised"]
     better, kept = score_r > score_p, clean_r >= clean_p - CLEAN_MARGIN
-    verdict = "ships as `pretrained:egru-robust`" if better and kept else "does not ship"
+    ships = standing(records, "randomised", 0, "select")[0]
+    actor = "randomised-s0" + (f"-{ships}" if ships else "")
+    verdict = f"ships as `pretrained:egru-robust`, actor {actor}" if better and kept else "does not ship"
     return rows, (
         f"Decision: the randomised eGRU {verdict} (robustness score {_pct(score_r)} against {_pct(score_p)}: "
         f"{'above' if better else 'not above'}; clean success {_pct(clean_r)} against {_pct(clean_p)}: "
@@ -200,9 +205,9 @@ def report(records: dict, study: Path = STUDY) -> list[str]:
 
 def training(study: Path = STUDY) -> list[str]:
     """Every run's training record (docs/data/robust-v1/ARM/runs/egru-sSEED.json, written by `mjx-push
-    protocol`): how far it got and its final actor's clean success on the protocol's test episodes. A
-    run still training has its record in its worktree only (`protocol_at_commit` copies settled ones
-    back): here it has no record yet."""
+    protocol`) and every rerun's (ARM/reruns/egru-sSEED-LABEL.json): how far it got and its final
+    actor's clean success on the protocol's test episodes. A run still training has its record in its
+    worktree only (`protocol_at_commit` copies settled ones back): here it has no record yet."""
     lines = []
     rows = [(arm, seed, None) for arm, seed in runs(study)] + reruns(study)
     for arm, seed, label in sorted(rows, key=lambda r: (ARMS.index(r[0]), r[1], r[2] or "")):
@@ -266,9 +271,19 @@ def add(record_path: Path, arm: str, seed: int, study: Path = STUDY, rerun: str 
         )
     record = json.loads(record_path.read_text())
     kind = episodes_of(record, _protocol(arm, study)["test_seed"], str(record_path))
-    out = study / "stress" / (f"{arm}-s{seed}" + (f"-{rerun}" if rerun else "") + f"-{kind}.json")
+    name = f"{arm}-s{seed}" + (f"-{rerun}" if rerun else "")
+    source = Path(str(record.get("source", "")))
+    if source.suffix == ".npz" and source.stem != name:
+        raise StudyError(
+            f"{record_path}: field 'source' is {source}, the actor policies/{source.name}, not {name}.npz "
+            f"(--arm {arm} --seed {seed}{f' --rerun {rerun}' if rerun else ''})"
+        )
+    out = study / "stress" / f"{name}-{kind}.json"
+    text = json.dumps(_trim(record), indent=1) + "\n"
+    if out.exists() and out.read_text() != text:
+        raise StudyError(f"{out} exists with another record: a record is never replaced (remove it by hand if wrong)")
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(_trim(record), indent=1) + "\n")
+    out.write_text(text)
     return out
 
 

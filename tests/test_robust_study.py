@@ -34,9 +34,14 @@ def _record(clean, rows, seed=rs.SELECTION_SEED, levels=("realistic",)):
     }
 
 
-def _add(study, tmp_path, arm, seed, record):
+def _add(study, tmp_path, arm, seed, record, replace=False):
+    """Keep `record` as run (arm, seed)'s; `replace`: remove the study's record of those episodes first
+    (a record is never replaced by `add`)."""
     path = tmp_path / f"{arm}-{seed}-{record['config']['seed']}.json"
     path.write_text(json.dumps(record))
+    if replace:
+        kind = "select" if record["config"]["seed"] == rs.SELECTION_SEED else "test"
+        (study / "stress" / f"{arm}-s{seed}-{kind}.json").unlink()
     return rs.add(path, arm, seed, study)
 
 
@@ -56,14 +61,17 @@ def test_the_rule_ships_a_better_score_at_equal_clean_and_not_a_lower_clean(tmp_
     _add(study, tmp_path, "randomised", 1, _record(0.94, {"latency": 0.90, "mass": 0.92}))
     text = rs.block(study)
     assert "| **plain, mean** | 95.0 | 85.0 |" in text and "| **randomised, mean** | 94.0 | 91.0 |" in text
-    assert "Decision: the randomised eGRU ships as `pretrained:egru-robust` (robustness score 91.0 against 85.0" in text
+    assert "Decision: the randomised eGRU ships as `pretrained:egru-robust`, actor randomised-s0 (robustness score 91.0 against 85.0" in text
     # 3 points of clean success lost: more than the rule allows, whatever the score
-    _add(study, tmp_path, "randomised", 1, _record(0.90, {"latency": 0.90, "mass": 0.92}))
+    with pytest.raises(rs.StudyError, match="randomised-s1-select.json exists with another record"):
+        _add(study, tmp_path, "randomised", 1, _record(0.90, {"latency": 0.90, "mass": 0.92}))
+    assert "| randomised s1 | 94.0 | 91.0 |" in rs.block(study)  # the kept record is unchanged
+    _add(study, tmp_path, "randomised", 1, _record(0.90, {"latency": 0.90, "mass": 0.92}), replace=True)
     text = rs.block(study)
     assert "the randomised eGRU does not ship" in text and "clean success 92.0 against 95.0: more than 2 points" in text
     # a score not above the plain arm's does not ship either
     for seed in (0, 1):
-        _add(study, tmp_path, "randomised", seed, _record(0.95, {"latency": 0.80, "mass": 0.90}))
+        _add(study, tmp_path, "randomised", seed, _record(0.95, {"latency": 0.80, "mass": 0.90}), replace=True)
     assert "does not ship (robustness score 85.0 against 85.0: not above" in rs.block(study)
 
 
@@ -75,7 +83,7 @@ def test_the_report_shows_every_test_record_and_reads_the_target_on_randomised_s
     assert "| plain-s0 | 96 |" in text and "| randomised-s0 | 95 |" in text
     assert "Not yet stressed on the test episodes: plain s1, randomised s1." in text
     assert "Target (randomised s0, test episodes): met: its largest loss from clean is 4.0 points (mass" in text
-    _add(study, tmp_path, "randomised", 0, _record(0.95, {"latency": 0.85, "mass": 0.91}, seed=TEST_SEED))
+    _add(study, tmp_path, "randomised", 0, _record(0.95, {"latency": 0.85, "mass": 0.91}, seed=TEST_SEED), replace=True)
     assert "not met: its largest loss from clean is 10.0 points (latency" in rs.block(study)
 
 
@@ -169,13 +177,18 @@ def test_a_lost_actor_is_stood_for_by_its_reruns_records_and_its_own_records_win
     _add(study, tmp_path, "plain", 1, _record(0.95, {"latency": 0.80, "mass": 0.90}))
     _add(study, tmp_path, "randomised", 1, _record(0.94, {"latency": 0.90, "mass": 0.92}))
     assert "no selection record yet for randomised s0." in rs.block(study)
+    # a record of another actor than the one named is refused
+    path.write_text(json.dumps({**_record(0.94, {"latency": 0.90, "mass": 0.92}), "source": "p/randomised-s0.npz"}))
+    with pytest.raises(rs.StudyError, match="the actor policies/randomised-s0.npz, not randomised-s0-machine2.npz"):
+        rs.add(path, "randomised", 0, study, rerun="machine2")
+    path.write_text(
+        json.dumps({**_record(0.94, {"latency": 0.90, "mass": 0.92}), "source": "p/randomised-s0-machine2.npz"})
+    )
     kept = rs.add(path, "randomised", 0, study, rerun="machine2")
     assert kept.name == "randomised-s0-machine2-select.json"
-    path.write_text(json.dumps(_record(0.94, {"latency": 0.90, "mass": 0.92})))
-    rs.add(path, "randomised", 0, study, rerun="machine2")
     text = rs.block(study)
     assert "| randomised s0 (rerun machine2) | 94.0 | 91.0 |" in text
-    assert "Decision: the randomised eGRU ships" in text
+    assert "Decision: the randomised eGRU ships as `pretrained:egru-robust`, actor randomised-s0-machine2 (" in text
     # the rerun of a run stressed before its actor was lost is shown, and the run's own record stands
     path.write_text(json.dumps(_record(0.50, {"latency": 0.10, "mass": 0.10})))
     rs.add(path, "plain", 0, study, rerun="machine2")
@@ -197,4 +210,15 @@ def test_a_lost_actor_is_stood_for_by_its_reruns_records_and_its_own_records_win
     # a file in the stress folder named for nothing the study knows is refused by name
     (study / "stress" / "plain-s0-laptop-test.json").write_text(json.dumps(record))
     with pytest.raises(rs.StudyError, match="plain-s0-laptop-test.json: not the record of a run or rerun"):
+        rs.block(study)
+    (study / "stress" / "plain-s0-laptop-test.json").unlink()
+    # two reruns' records with none of the run's own: the study reads one, so it refuses
+    _rerun(study, "randomised", 0, label="machine3")
+    path.write_text(json.dumps(_record(0.5, {"mass": 0.5})))
+    rs.add(path, "randomised", 0, study, rerun="machine3")
+    with pytest.raises(rs.StudyError, match=r"randomised s0: select records of reruns \['machine2', 'machine3'\]"):
+        rs.block(study)
+    # a rerun record named for no run of the study is refused
+    (study / "randomised" / "reruns" / "egru-s7-machine2.json").write_text("{}")
+    with pytest.raises(rs.StudyError, match="egru-s7-machine2.json: not the rerun record of a run of the study"):
         rs.block(study)
