@@ -232,6 +232,16 @@ def training(study: Path = STUDY) -> list[str]:
         )
         cols = [_name(arm, seed, label), status, f"{steps:,}", *cells, rec.get("note", "")]
         lines.append("| " + " | ".join(cols) + " |")
+    for arm in ARMS:  # the scripted expert on the same test episodes (`mjx-push protocol` scores it last)
+        path = study / arm / "expert.json"
+        if path.exists():
+            shapes = _protocol(arm, study).get("shapes", [])
+            try:
+                success = [json.loads(path.read_text())["shapes"][s]["summary"]["success"]["mean"] for s in shapes]
+            except (OSError, ValueError, KeyError, TypeError) as e:
+                raise StudyError(f"{path}: not a readable expert record ({type(e).__name__}: {e})") from e
+            cells = [_pct(x) for x in success] + [_pct(sum(success) / len(success))]
+            lines.append("| " + " | ".join([f"expert ({arm}'s protocol)", "scored", "-", *cells, "reference"]) + " |")
     return lines
 
 

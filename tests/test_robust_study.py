@@ -61,7 +61,10 @@ def test_the_rule_ships_a_better_score_at_equal_clean_and_not_a_lower_clean(tmp_
     _add(study, tmp_path, "randomised", 1, _record(0.94, {"latency": 0.90, "mass": 0.92}))
     text = rs.block(study)
     assert "| **plain, mean** | 95.0 | 85.0 |" in text and "| **randomised, mean** | 94.0 | 91.0 |" in text
-    assert "Decision: the randomised eGRU ships as `pretrained:egru-robust`, actor randomised-s0 (robustness score 91.0 against 85.0" in text
+    assert (
+        "Decision: the randomised eGRU ships as `pretrained:egru-robust`, actor randomised-s0 (robustness score 91.0 against 85.0"
+        in text
+    )
     # 3 points of clean success lost: more than the rule allows, whatever the score
     with pytest.raises(rs.StudyError, match="randomised-s1-select.json exists with another record"):
         _add(study, tmp_path, "randomised", 1, _record(0.90, {"latency": 0.90, "mass": 0.92}))
@@ -148,8 +151,16 @@ def test_every_run_is_listed_with_its_training_record_or_as_having_none(tmp_path
     assert "| plain s0 | finished | 128,000 | 100.0 | 95.0 | 97.5 | resumed at 48,000 env steps |" in text
     assert "| plain s1 | training | 16,000 | - | - | - | training in runs/x |" in text
     assert "| randomised s0 | no record yet | - | - | - | - | - |" in text
+    (study / "randomised" / "expert.json").write_text(
+        json.dumps({"shapes": {"cylinder": summary(1.0), "square": summary(0.9)}})
+    )
+    assert "| expert (randomised's protocol) | scored | - | 100.0 | 90.0 | 95.0 | reference |" in rs.block(study)
     (study / "plain" / "runs" / "egru-s0.json").write_text(json.dumps({"status": "finished"}))
     with pytest.raises(rs.StudyError, match="egru-s0.json: not a readable run record"):
+        rs.block(study)
+    (study / "plain" / "runs" / "egru-s0.json").unlink()
+    (study / "randomised" / "expert.json").write_text(json.dumps({"shapes": {}}))
+    with pytest.raises(rs.StudyError, match="expert.json: not a readable expert record"):
         rs.block(study)
 
 
