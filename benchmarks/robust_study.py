@@ -12,7 +12,8 @@ protocol's test episodes (its `test_seed`: the report). `add` names the episodes
 seed and refuses a record of any other seed or without the realistic level. The rule is the page's,
 fixed before the runs: the randomised arm's seed-0 actor ships when its arm's mean robustness score is
 above the plain arm's and its mean clean success at most 2 points below; until every selection record
-is in, the decision says what is missing. A seed's records are its own actor's where they exist, else
+is in, the decision says what is missing, and whether the missing records could still change the
+outcome (each lying anywhere in [0, 1]). A seed's records are its own actor's where they exist, else
 its rerun's (the page's amendment: an actor lost before it was stressed).
 """
 
@@ -158,7 +159,9 @@ def decision(records: dict, study: Path = STUDY) -> tuple[list[list[str]], str]:
             rows.append([f"{_name(arm, seed, label)}, not read by the rule", _pct(clean), _pct(score)])
     missing = [f"{a} s{s}" for a, s in runs(study) if standing(records, a, s, "select") is None]
     if missing:
-        return rows, f"Decision pending: no selection record yet for {', '.join(missing)}."
+        pending = f"Decision pending: no selection record yet for {', '.join(missing)}."
+        fixed = _fixed_outcome(records, study)
+        return rows, pending + (f" {fixed}" if fixed else "")
     (clean_p, score_p), (clean_r, score_r) = means["plain"], means["randomised"]
     better, kept = score_r > score_p, clean_r >= clean_p - CLEAN_MARGIN
     ships = standing(records, "randomised", 0, "select")[0]
@@ -169,6 +172,33 @@ def decision(records: dict, study: Path = STUDY) -> tuple[list[list[str]], str]:
         f"{'above' if better else 'not above'}; clean success {_pct(clean_r)} against {_pct(clean_p)}: "
         f"{'within' if kept else 'more than'} {100 * CLEAN_MARGIN:g} points below)."
     )
+
+
+def _fixed_outcome(records: dict, study: Path) -> str | None:
+    """Whether the rule's outcome no longer depends on the missing selection records: each arm's
+    means bounded by its missing seeds' records lying anywhere in [0, 1]. None when they could still
+    change it."""
+    bounds = {}
+    for arm in ARMS:
+        got = [standing(records, a, s, "select") for a, s in runs(study) if a == arm]
+        known = [_clean_and_score(x[1]) for x in got if x is not None]
+        n, gaps = len(got), len(got) - len(known)
+        bounds[arm] = [(sum(k[i] for k in known) / n, (sum(k[i] for k in known) + gaps) / n) for i in range(2)]
+    (clean_p, score_p), (clean_r, score_r) = bounds["plain"], bounds["randomised"]
+    if clean_r[1] < clean_p[0] - CLEAN_MARGIN:
+        why = (
+            f"the randomised arm's mean clean success is at most {_pct(clean_r[1])} % even if its missing records "
+            f"were 100 %, more than {100 * CLEAN_MARGIN:g} points below the plain arm's lowest possible "
+            f"{_pct(clean_p[0])} %"
+        )
+    elif score_r[1] <= score_p[0]:
+        why = (
+            f"the randomised arm's mean robustness score is at most {_pct(score_r[1])} %, not above the plain "
+            f"arm's lowest possible {_pct(score_p[0])} %"
+        )
+    else:
+        return None
+    return f"Whatever they hold, the randomised eGRU does not ship: {why}."
 
 
 def report(records: dict, study: Path = STUDY) -> list[str]:

@@ -57,7 +57,8 @@ def test_the_rule_ships_a_better_score_at_equal_clean_and_not_a_lower_clean(tmp_
     for seed in (0, 1):
         _add(study, tmp_path, "plain", seed, _record(0.95, {"latency": 0.80, "mass": 0.90}))
     _add(study, tmp_path, "randomised", 0, _record(0.94, {"latency": 0.90, "mass": 0.92}))
-    assert "Decision pending: no selection record yet for randomised s1." in rs.block(study)
+    text = rs.block(study)
+    assert "Decision pending: no selection record yet for randomised s1." in text and "Whatever" not in text
     _add(study, tmp_path, "randomised", 1, _record(0.94, {"latency": 0.90, "mass": 0.92}))
     text = rs.block(study)
     assert "| **plain, mean** | 95.0 | 85.0 |" in text and "| **randomised, mean** | 94.0 | 91.0 |" in text
@@ -233,3 +234,26 @@ def test_a_lost_actor_is_stood_for_by_its_reruns_records_and_its_own_records_win
     (study / "randomised" / "reruns" / "egru-s7-machine2.json").write_text("{}")
     with pytest.raises(rs.StudyError, match="egru-s7-machine2.json: not the rerun record of a run of the study"):
         rs.block(study)
+
+
+def test_a_pending_decision_says_when_the_missing_records_can_no_longer_change_it(tmp_path):
+    study = _study(tmp_path)
+    for seed in (0, 1):
+        _add(study, tmp_path, "plain", seed, _record(0.95, {"latency": 0.80, "mass": 0.90}))
+    # randomised s1 at 87 % clean: with s0 at 100 % the arm's mean could be 93.5 %, within 2 points of 95 %
+    _add(study, tmp_path, "randomised", 1, _record(0.87, {"latency": 0.80, "mass": 0.90}))
+    text = rs.block(study)
+    assert "Decision pending: no selection record yet for randomised s0." in text and "Whatever" not in text
+    # at 80 % clean the arm's mean is at most 90 %, more than 2 points below 95 %: no record can ship it
+    _add(study, tmp_path, "randomised", 1, _record(0.80, {"latency": 0.99, "mass": 0.99}), replace=True)
+    text = rs.block(study)
+    assert (
+        "Decision pending: no selection record yet for randomised s0. Whatever they hold, the randomised eGRU does "
+        "not ship: the randomised arm's mean clean success is at most 90.0 % even if its missing records were "
+        "100 %, more than 2 points below the plain arm's lowest possible 95.0 %." in text
+    )
+    # a score that cannot rise above the plain arm's fixes it too
+    _add(study, tmp_path, "randomised", 1, _record(0.95, {"latency": 0.30, "mass": 0.30}), replace=True)
+    assert "mean robustness score is at most 65.0 %, not above the plain arm's lowest possible 85.0 %" in rs.block(
+        study
+    )
