@@ -45,6 +45,14 @@ def _add(study, tmp_path, arm, seed, record, replace=False):
     return rs.add(path, arm, seed, study)
 
 
+def _plain_arm_stressed(tmp_path):
+    """A study whose plain arm has both selection records: 95 % clean, score 85 %."""
+    study = _study(tmp_path)
+    for seed in (0, 1):
+        _add(study, tmp_path, "plain", seed, _record(0.95, {"latency": 0.80, "mass": 0.90}))
+    return study
+
+
 def test_without_records_every_run_is_named_pending(tmp_path):
     text = rs.block(_study(tmp_path))
     assert text.count("not yet stressed") == 4
@@ -53,9 +61,7 @@ def test_without_records_every_run_is_named_pending(tmp_path):
 
 
 def test_the_rule_ships_a_better_score_at_equal_clean_and_not_a_lower_clean(tmp_path):
-    study = _study(tmp_path)
-    for seed in (0, 1):
-        _add(study, tmp_path, "plain", seed, _record(0.95, {"latency": 0.80, "mass": 0.90}))
+    study = _plain_arm_stressed(tmp_path)
     _add(study, tmp_path, "randomised", 0, _record(0.94, {"latency": 0.90, "mass": 0.92}))
     text = rs.block(study)
     assert "Decision pending: no selection record yet for randomised s1." in text and "Whatever" not in text
@@ -237,9 +243,7 @@ def test_a_lost_actor_is_stood_for_by_its_reruns_records_and_its_own_records_win
 
 
 def test_a_pending_decision_says_when_the_missing_records_can_no_longer_change_it(tmp_path):
-    study = _study(tmp_path)
-    for seed in (0, 1):
-        _add(study, tmp_path, "plain", seed, _record(0.95, {"latency": 0.80, "mass": 0.90}))
+    study = _plain_arm_stressed(tmp_path)
     # randomised s1 at 87 % clean: with s0 at 100 % the arm's mean could be 93.5 %, within 2 points of 95 %
     _add(study, tmp_path, "randomised", 1, _record(0.87, {"latency": 0.80, "mass": 0.90}))
     text = rs.block(study)
