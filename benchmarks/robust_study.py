@@ -37,12 +37,9 @@ ARMS = ("plain", "randomised")
 SELECTION_SEED = 3_100_019
 CLEAN_MARGIN = 0.02  # the rule: clean success at most 2 points below the plain arm's
 TARGET_DROP = 0.05  # the target, reported only: at most 5 points lost on any row
-KINDS = ("select", "test")
-_LABEL = re.compile(r"[a-z0-9]+(?:-[a-z0-9]+)*")
-_RERUN_FILE = re.compile(r"egru-s(?P<seed>0|[1-9][0-9]*)-(?P<label>[a-z0-9]+(?:-[a-z0-9]+)*)\.json")
-_STRESS_FILE = re.compile(
-    r"(?P<arm>[a-z]+)-s(?P<seed>0|[1-9][0-9]*)(?:-(?P<label>[a-z0-9]+(?:-[a-z0-9]+)*))?-(?P<kind>select|test)\.json"
-)
+_LABEL = r"(?P<label>[a-z0-9]+(?:-[a-z0-9]+)*)"  # a rerun's label, as protocol_at_commit --rerun takes it
+_RERUN_FILE = re.compile(rf"egru-s(?P<seed>0|[1-9][0-9]*)-{_LABEL}\.json")
+_STRESS_FILE = re.compile(rf"(?P<arm>[a-z]+)-s(?P<seed>0|[1-9][0-9]*)(?:-{_LABEL})?-(?P<kind>select|test)\.json")
 
 
 class StudyError(ValueError):
