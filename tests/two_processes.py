@@ -9,6 +9,7 @@ import os
 import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 from mjx_push import xla
@@ -47,9 +48,11 @@ def write_config(path: Path, run_config) -> Path:
     return path
 
 
-def launch(run_dir: Path, config: Path, *extra: str, timeout: float = 900) -> None:
+def launch(run_dir: Path, config: Path, *extra: str, timeout: float = 400) -> None:
     """Train `config` (a JSON run configuration) on the toy task in `run_dir` as two processes, with
-    the worker's `extra` options (`--stop-after N`, `--resume`); raises with a failed process's output."""
+    the worker's `extra` options (`--stop-after N`, `--resume`); raises with a failed process's output,
+    and kills both when they have not finished within `timeout` seconds (one waiting forever for the
+    other must not outlive the test)."""
     port = _free_port()
     cmd = [sys.executable, "-m", "tests.distributed_worker", str(port), "{i}", "2", str(run_dir), str(config), "--toy"]
     procs = [
@@ -63,7 +66,17 @@ def launch(run_dir: Path, config: Path, *extra: str, timeout: float = 900) -> No
         )
         for i in range(2)
     ]
-    outs = [p.communicate(timeout=timeout)[0] for p in procs]
+    deadline = time.monotonic() + timeout
+    try:
+        outs = [p.communicate(timeout=max(deadline - time.monotonic(), 1.0))[0] for p in procs]
+    except subprocess.TimeoutExpired:
+        for p in procs:
+            p.kill()
+        outs = [p.communicate()[0] for p in procs]
+        raise RuntimeError(
+            f"the two-process run did not finish in {timeout:.0f} s; both killed. Their output:\n"
+            + "\n".join(f"process {i}:\n{out[-2000:]}" for i, out in enumerate(outs))
+        ) from None
     for i, (p, out) in enumerate(zip(procs, outs)):
         if p.returncode != 0:
             raise RuntimeError(f"process {i} of the two-process run failed:\n{out[-3000:]}")
