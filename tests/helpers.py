@@ -19,7 +19,8 @@ def use_test_compilation(disable_optimizations: bool = True) -> None:
     skip most compilation and a cold run fills it (MJX_PUSH_TEST_CACHE points it elsewhere, e.g. an
     empty folder to time a cold run as CI sees it). Programs under 2 s to compile stay out of it: with
     every program cached (the eager operations on sharded arrays included) a cold two-worker run once
-    aborted in a two-device test and hung in another. Compilation, not execution, is most of the
+    aborted in a two-device test and hung in another (the abort recurred without caching them: most
+    likely the collective stall tests/test_data_parallel.py describes). Compilation, not execution, is most of the
     suite's time on CPU, and XLA's optimisation passes most of compilation (an MJX step compiles in
     about half the time without them and runs at half the speed, which the tests' few substeps do not
     notice); the programs compute the same. MJX_PUSH_TEST_OPTIMIZE=1 keeps them."""
