@@ -46,7 +46,7 @@ class BatchState:
 
     def cat(self, get) -> jax.Array:
         """Concatenate `get(state)` over the groups along the batch axis."""
-        return jax.tree.map(lambda *xs: jnp.concatenate(xs, axis=0), *[get(g) for g in self.groups])
+        return jax.tree.map(_join, *[get(g) for g in self.groups])
 
     @property
     def obs(self):
@@ -69,6 +69,18 @@ class BatchState:
     @property
     def metrics(self) -> Mapping[str, Any]:
         return _Concatenated(self, "metrics")
+
+
+def _join(*xs: jax.Array) -> jax.Array:
+    """The groups' arrays concatenated along the batch axis. Read outside a trace, each join waits for
+    its result before the next is dispatched: the groups are spread over the host devices, so each
+    eager join is a small program over all of them with a collective, and on CPU (jaxlib 0.10) a burst
+    of such programs dispatched without waiting can leave the devices in different collectives until
+    XLA aborts the process (`benchmarks/collective_burst.py`)."""
+    out = jnp.concatenate(xs, axis=0)
+    if not isinstance(out, jax.core.Tracer):
+        jax.block_until_ready(out)
+    return out
 
 
 class _Concatenated(Mapping):

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from mjx_push import objects
-from mjx_push.batch import PushBatch
+from mjx_push import batch as batch_module
+from mjx_push.batch import BatchState, PushBatch
 from mjx_push.env import EnvConfig, decode_substeps
 from tests.helpers import a_s_for
 
@@ -42,6 +43,25 @@ def test_groups_and_concatenation(batch):
     np.testing.assert_array_equal(np.asarray(s.info["step"]), [1, 1, 1, 1])
     # Observation: the noisy flange xy is within a few noise std of the truth.
     assert np.all(np.abs(np.asarray(s.obs["ee_xy"] - s.info["ee_xy_true"])) < 1e-3)
+
+
+def test_eager_joins_of_the_groups_each_wait_before_the_next(monkeypatch):
+    """Read outside a trace, each leaf's join of the groups waits for its result before the next leaf
+    is joined (a burst of joins over the host devices can deadlock on CPU:
+    benchmarks/collective_burst.py); traced, none waits."""
+    events = []
+    concatenate, wait = jnp.concatenate, jax.block_until_ready
+    monkeypatch.setattr(
+        batch_module.jnp, "concatenate", lambda xs, axis: events.append("join") or concatenate(xs, axis)
+    )
+    monkeypatch.setattr(batch_module.jax, "block_until_ready", lambda x: events.append("wait") or wait(x))
+    groups = ({"a": jnp.ones((2, 3)), "b": jnp.zeros(2)}, {"a": jnp.zeros((1, 3)), "b": jnp.ones(1)})
+    joined = BatchState(groups=groups).cat(lambda g: g)
+    assert events == ["join", "wait", "join", "wait"]
+    np.testing.assert_array_equal(joined["b"], [0, 0, 1])
+    events.clear()
+    jax.jit(lambda s: s.cat(lambda g: g))(BatchState(groups=groups))
+    assert events == ["join", "join"]
 
 
 def test_same_key_same_trajectory_bitwise(batch):
