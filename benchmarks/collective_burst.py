@@ -67,18 +67,28 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--programs", type=int, default=40, help="eager joins dispatched per burst")
     ap.add_argument("--repeats", type=int, default=20, help="bursts per case")
     ap.add_argument("--timeout", type=int, default=5, help="XLA's rendezvous timeout in the cases, seconds")
-    ap.add_argument("--out", type=Path, default=Path("runs/collective_burst.json"))
+    ap.add_argument("--out", type=Path, default=Path("outputs/collective_burst.json"))
     a = ap.parse_args(argv)
     for name, value in (("--programs", a.programs), ("--repeats", a.repeats), ("--timeout", a.timeout)):
         if value < 1:
             ap.error(f"{name} must be at least 1, got {value}")
+    import jax
+
+    import mjx_push
+
+    mjx_push.xla.use_cpu_devices()
+    if len(jax.devices()) < 2:  # one device: no collectives, every case would finish and mean nothing
+        print(f"needs 2 host devices, this process has {len(jax.devices())} (MJX_PUSH_CPU_DEVICES, cores)")
+        return 2
     rows = [
         run_case(n, a.repeats, wait, a.timeout) for n, wait in ((1, False), (a.programs, False), (a.programs, True))
     ]
     print("| joins per burst | each waits | outcome | wall (s) |\n|---|---|---|---|")
     for r in rows:
         print(f"| {r['programs']} | {'yes' if r['wait'] else 'no'} | {r['outcome']} | {r['wall_s']:.1f} |")
-    write_json(a.out, {"benchmark": "collective_burst", "timeout_s": a.timeout, "rows": rows})
+    write_json(
+        a.out, {"benchmark": "collective_burst", "devices": len(jax.devices()), "timeout_s": a.timeout, "rows": rows}
+    )
     return 0
 
 

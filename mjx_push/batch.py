@@ -73,14 +73,14 @@ class BatchState:
 
 def _join(*xs: jax.Array) -> jax.Array:
     """The groups' arrays concatenated along the batch axis. Read outside a trace, each join waits for
-    its result before the next is dispatched: the groups are spread over the host devices, so each
+    its inputs and its result before the next is dispatched: the groups are spread over the host devices, so each
     eager join is a small program over all of them with a collective, and on CPU (jaxlib 0.10) a burst
     of such programs dispatched without waiting can leave the devices in different collectives until
     XLA aborts the process (`benchmarks/collective_burst.py`)."""
-    out = jnp.concatenate(xs, axis=0)
-    if not isinstance(out, jax.core.Tracer):
-        jax.block_until_ready(out)
-    return out
+    if any(isinstance(x, jax.core.Tracer) for x in xs):
+        return jnp.concatenate(xs, axis=0)
+    jax.block_until_ready(xs)  # the step that made them may still run
+    return jax.block_until_ready(jnp.concatenate(xs, axis=0))
 
 
 class _Concatenated(Mapping):

@@ -46,8 +46,8 @@ def test_groups_and_concatenation(batch):
 
 
 def test_eager_joins_of_the_groups_each_wait_before_the_next(monkeypatch):
-    """Read outside a trace, each leaf's join of the groups waits for its result before the next leaf
-    is joined (a burst of joins over the host devices can deadlock on CPU:
+    """Read outside a trace, each leaf's join of the groups waits for its inputs and its result before
+    the next leaf is joined (a burst of joins over the host devices can deadlock on CPU:
     benchmarks/collective_burst.py); traced, none waits."""
     events = []
     concatenate, wait = jnp.concatenate, jax.block_until_ready
@@ -57,7 +57,7 @@ def test_eager_joins_of_the_groups_each_wait_before_the_next(monkeypatch):
     monkeypatch.setattr(batch_module.jax, "block_until_ready", lambda x: events.append("wait") or wait(x))
     groups = ({"a": jnp.ones((2, 3)), "b": jnp.zeros(2)}, {"a": jnp.zeros((1, 3)), "b": jnp.ones(1)})
     joined = BatchState(groups=groups).cat(lambda g: g)
-    assert events == ["join", "wait", "join", "wait"]
+    assert events == ["wait", "join", "wait"] * 2
     np.testing.assert_array_equal(joined["b"], [0, 0, 1])
     events.clear()
     jax.jit(lambda s: s.cat(lambda g: g))(BatchState(groups=groups))

@@ -156,10 +156,10 @@ def test_two_processes_train_one_run_and_resume_it(tmp_path):
     train = toy_config("vpm", 640, data_parallel=2, warmup_env_steps=160, eval_every_env_steps=320)
     config = two_processes.write_config(tmp_path / "config-in.json", two_processes.toy_run(train))
     run_dir = tmp_path / "run"
-    two_processes.launch(run_dir, config, "--stop-after", "6")
+    two_processes.launch(run_dir, config, "--stop-after", "6", timeout=400)
     assert all(s["stopped_at_env_steps"] == 6 * 80 for s in two_processes.summaries(run_dir))
     assert sorted(p.name for p in (run_dir / "checkpoints").iterdir() if p.name.isdigit()) == ["320"]
-    two_processes.launch(run_dir, config, "--resume")
+    two_processes.launch(run_dir, config, "--resume", timeout=400)
     a, b = (np.load(run_dir / f"state-{i}.npz") for i in range(2))
     assert len(a.files) > 20 and a.files == b.files  # the whole learner state, not the actor alone
     for k in a.files:

@@ -9,6 +9,7 @@ import os
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -48,38 +49,51 @@ def write_config(path: Path, run_config) -> Path:
     return path
 
 
-def launch(run_dir: Path, config: Path, *extra: str, timeout: float = 400) -> None:
+def launch(run_dir: Path, config: Path, *extra: str, timeout: float = 900) -> None:
     """Train `config` (a JSON run configuration) on the toy task in `run_dir` as two processes, with
-    the worker's `extra` options (`--stop-after N`, `--resume`); raises with a failed process's output,
-    and kills both when they have not finished within `timeout` seconds (one waiting forever for the
-    other must not outlive the test)."""
+    the worker's `extra` options (`--stop-after N`, `--resume`); raises with the processes' output when
+    one fails (the other is killed: it would wait for its peer until `jax.distributed` gives up) or
+    when they have not both finished within `timeout` seconds (both killed)."""
     port = _free_port()
     cmd = [sys.executable, "-m", "tests.distributed_worker", str(port), "{i}", "2", str(run_dir), str(config), "--toy"]
-    procs = [
-        subprocess.Popen(
-            [c.format(i=i) for c in cmd] + list(extra),
-            cwd=ROOT,
-            env=worker_env(),
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-        )
-        for i in range(2)
-    ]
-    deadline = time.monotonic() + timeout
-    try:
-        outs = [p.communicate(timeout=max(deadline - time.monotonic(), 1.0))[0] for p in procs]
-    except subprocess.TimeoutExpired:
+    with tempfile.TemporaryFile("w+") as log0, tempfile.TemporaryFile("w+") as log1:
+        logs = (log0, log1)
+        procs = [
+            subprocess.Popen(
+                [c.format(i=i) for c in cmd] + list(extra),
+                cwd=ROOT,
+                env=worker_env(),
+                stdout=logs[i],
+                stderr=subprocess.STDOUT,
+                text=True,
+            )
+            for i in range(2)
+        ]
+        deadline = time.monotonic() + timeout
+        while any(p.poll() is None for p in procs) and time.monotonic() < deadline:
+            if any(p.returncode not in (None, 0) for p in procs):
+                break
+            time.sleep(0.5)
+        timed_out = any(p.poll() is None for p in procs) and time.monotonic() >= deadline
+        killed = [p.poll() is None for p in procs]
         for p in procs:
-            p.kill()
-        outs = [p.communicate()[0] for p in procs]
+            if p.poll() is None:
+                p.kill()
+            p.wait()
+        outs = []
+        for log in logs:
+            log.seek(0)
+            outs.append(log.read())
+    if timed_out:
         raise RuntimeError(
             f"the two-process run did not finish in {timeout:.0f} s; both killed. Their output:\n"
             + "\n".join(f"process {i}:\n{out[-2000:]}" for i, out in enumerate(outs))
-        ) from None
-    for i, (p, out) in enumerate(zip(procs, outs)):
-        if p.returncode != 0:
-            raise RuntimeError(f"process {i} of the two-process run failed:\n{out[-3000:]}")
+        )
+    # The process that failed on its own first (its peer, killed, only says it was waiting).
+    for i in sorted(range(2), key=lambda i: killed[i]):
+        if procs[i].returncode != 0:
+            peer = "; the other was killed" if killed[1 - i] else ""
+            raise RuntimeError(f"process {i} of the two-process run failed{peer}:\n{outs[i][-3000:]}")
 
 
 def summaries(run_dir: Path) -> list[dict]:
