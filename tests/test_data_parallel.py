@@ -46,13 +46,14 @@ def test_the_update_over_two_devices_averages_the_devices_gradients(real_update)
             check_vma=False,
         )
     )
-    # The results are read on the host (np.asarray), never indexed on the devices: each eager index of
-    # an array spread over both devices is a small two-device program, and a burst of them dispatched
-    # while the update still ran stalled one device's side of a collective until XLA aborted the
-    # process (its 40 s rendezvous timeout; about one run in eight on 2 cores, and once in CI).
-    both = _on_host(sharded(state, batch))
+    # The results are read on the host (jax.device_get copies each shard; no program runs), never
+    # indexed on the devices: each eager index of an array spread over both devices is a small
+    # two-device program, and a burst of them dispatched while the update still ran stalled one
+    # device's side of a collective until XLA aborted the process (its 40 s rendezvous timeout; about
+    # one run in eight on 2 cores, and once in CI).
+    both = jax.device_get(sharded(state, batch))
     _assert_same_on_every_device(both, lambda x: [x[0], x[1]])
-    same = _on_host(sharded(state, jax.tree.map(lambda x: jnp.concatenate([x, x]), half(batch, 0))))
+    same = jax.device_get(sharded(state, jax.tree.map(lambda x: jnp.concatenate([x, x]), half(batch, 0))))
     alone = [single(state, half(batch, i), KEY)[0] for i in range(2)]
     for (path, a), b in zip(
         jax.tree_util.tree_leaves_with_path(jax.tree.map(lambda x: x[0], same)), jax.tree.leaves(alone[0])
@@ -66,12 +67,6 @@ def test_the_update_over_two_devices_averages_the_devices_gradients(real_update)
                 for a, o in zip(jax.tree.leaves(getattr(averaged, part)), jax.tree.leaves(getattr(own, part)))
             ]
             assert max(moved) > 1e-6, part
-
-
-def _on_host(tree):
-    """Every leaf of ``tree`` as a NumPy array: the devices' shards copied to the host and assembled
-    there, with no program run on the devices."""
-    return jax.tree.map(np.asarray, jax.block_until_ready(tree))
 
 
 def _assert_same_on_every_device(tree, per_device) -> None:
