@@ -1,0 +1,13 @@
+"""benchmarks/tick_phases.py: bad input is refused naming the flag, before anything is measured."""
+
+import pytest
+
+from benchmarks import tick_phases
+
+
+@pytest.mark.parametrize("flag", ["--envs", "--repeats"])
+def test_a_count_below_one_is_refused_naming_its_flag(flag, capsys, monkeypatch):
+    monkeypatch.setattr(tick_phases, "measure", lambda *a: pytest.fail("a measurement ran"))
+    with pytest.raises(SystemExit) as e:
+        tick_phases.main([flag, "0"])
+    assert e.value.code == 2 and f"{flag} must be >= 1, got 0" in capsys.readouterr().err
