@@ -15,8 +15,9 @@ def machine() -> dict:
 
 
 def checkout() -> dict | None:
-    """The code that ran: this checkout's commit and whether its tracked files differ from it (None
-    outside a git checkout), so a row labelled HEAD can be traced to a commit."""
+    """The code that ran: this checkout's commit and whether the tree differs from it, a tracked file
+    changed or a file git does not ignore added (a new script is code too; None outside a git
+    checkout), so a row labelled HEAD can be traced to a commit."""
     root = Path(__file__).resolve().parents[1]
     git = lambda *args: subprocess.run(["git", *args], cwd=root, capture_output=True, text=True)  # noqa: E731
     head = git("rev-parse", "--short", "HEAD")
@@ -24,7 +25,7 @@ def checkout() -> dict | None:
         return None
     return {
         "commit": head.stdout.strip(),
-        "modified": bool(git("status", "--porcelain", "--untracked-files=no").stdout),
+        "modified": bool(git("status", "--porcelain").stdout),
     }
 
 

@@ -12,8 +12,9 @@ acts (`act`: the agent's actor; `expert`: the scripted expert's action, computed
 environment where demonstrations are stored) and begins its next step (`begin`). Each phase is jitted
 alone over `--envs` environments of one shape, at the preset's task, and timed as the median of
 `--repeats` calls after one warm call. The last column is the share of a tick with a turn that the
-physics takes: what any change to the other phases can at most win back. Prints a table, writes
-JSON. Run it alone on the machine.
+physics takes; the rest is what any change to the other phases could at most win back. The two
+groups run as programs of their own, so the faster group's device idles at the batch's end until
+the slower one's episodes end. Prints a table, writes JSON. Run it alone on the machine.
 """
 
 from __future__ import annotations
@@ -71,7 +72,6 @@ def measure(agent: str, preset: str, shape: str, envs: int, repeats: int) -> dic
         "begin": (begin, (state, action)),
     }
     ms = {name: _median_ms(fn, args, repeats) for name, (fn, args) in phases.items()}
-    turn = ms["finish"] + ms["act"] + ms["expert"] + ms["begin"]
     return {
         "agent": agent,
         "preset": preset,
@@ -80,8 +80,13 @@ def measure(agent: str, preset: str, shape: str, envs: int, repeats: int) -> dic
         "substep_chunk": DEFAULT_SUBSTEP_CHUNK,
         "ms": ms,
         "substep_ms": ms["advance"] / DEFAULT_SUBSTEP_CHUNK,
-        "physics_share_of_a_turn_tick": ms["advance"] / (ms["advance"] + turn),
+        "physics_share_of_a_turn_tick": physics_share(ms),
     }
+
+
+def physics_share(ms: dict) -> float:
+    """The physics chunk's share of a tick on which the group's steps are finished and begun again."""
+    return ms["advance"] / sum(ms[name] for name in ("advance", "finish", "act", "expert", "begin"))
 
 
 def main(argv=None) -> None:
