@@ -64,7 +64,9 @@ class Checkpoints:
         options = ocp.CheckpointManagerOptions(
             max_to_keep=keep, enable_async_checkpointing=False, create=True, cleanup_tmp_directories=False
         )
-        self.manager = ocp.CheckpointManager(self.directory, options=options)
+        # Handlers named up front, so a checkpoint's tree metadata can be read before anything is restored.
+        handlers = {"state": ocp.StandardCheckpointHandler(), "meta": ocp.JsonCheckpointHandler()}
+        self.manager = ocp.CheckpointManager(self.directory, options=options, item_handlers=handlers)
 
     def save(self, state: TrainState, config: RunConfig, extra: dict) -> int:
         step = int(state.env_steps)
@@ -109,6 +111,13 @@ class Checkpoints:
                 f"checkpoint {self.directory}/{step} was made with a different configuration: " + "; ".join(diff[:6])
             )
         abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, template)
+        mismatched = self._mismatched_arrays(step, abstract)
+        if mismatched:  # refused before any read: a restore failing half way leaves orbax's other reads pending
+            raise ConfigError(
+                f"checkpoint {self.directory}/{step} does not match this run's state (shapes, dtypes or "
+                f"structure): {'; '.join(mismatched[:4])}"
+                + (f" and {len(mismatched) - 4} more" if len(mismatched) > 4 else "")
+            )
         try:
             state = self.manager.restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract)))[
                 "state"
@@ -132,6 +141,29 @@ class Checkpoints:
             ) from None
         return placed_like(state, template), meta
 
+    def _mismatched_arrays(self, step: int, abstract: TrainState) -> list[str]:
+        """The arrays the checkpoint at `step` holds at a path of `abstract` with another shape or dtype,
+        each as "path: saved DTYPE[SHAPE], this run's DTYPE[SHAPE]", read from its tree metadata; [] when
+        the metadata cannot be read. Paths only one side has are left to the restore (added fields)."""
+        try:
+            tree = self.manager.item_metadata(step)["state"].tree
+        except Exception:
+            return []
+        saved = {_path_name(p): leaf for p, leaf in jax.tree_util.tree_flatten_with_path(tree)[0]}
+        out = []
+        for p, leaf in jax.tree_util.tree_flatten_with_path(abstract)[0]:
+            name = _path_name(p)
+            meta = saved.get(name)
+            if meta is None or not (hasattr(meta, "shape") and hasattr(meta, "dtype")):
+                continue
+            try:
+                was, now = (np.dtype(meta.dtype), tuple(meta.shape)), (np.dtype(leaf.dtype), tuple(leaf.shape))
+            except TypeError:  # a dtype NumPy does not know (typed PRNG keys): left to the restore
+                continue
+            if was != now:
+                out.append(f"{name}: saved {was[0]}{list(was[1])}, this run's {now[0]}{list(now[1])}")
+        return out
+
     def _missing_added_fields(self, step: int) -> tuple[str, ...]:
         """Which of `ADDED_FIELDS` the checkpoint at `step` does not hold, read from its tree metadata
         (nothing restored); () when the metadata cannot be read."""
@@ -154,3 +186,8 @@ class Checkpoints:
         except Exception:
             return None
         return template.replace(**got)
+
+
+def _path_name(path) -> str:
+    """A pytree key path as "field/key/index", the same for a TrainState and its checkpoint's metadata."""
+    return "/".join(str(getattr(k, "name", getattr(k, "key", getattr(k, "idx", k)))) for k in path)
