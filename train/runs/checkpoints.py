@@ -145,9 +145,8 @@ class Checkpoints:
         """The arrays the checkpoint at `step` holds at a path of `abstract` with another shape or dtype,
         each as "path: saved DTYPE[SHAPE], this run's DTYPE[SHAPE]", read from its tree metadata; [] when
         the metadata cannot be read. Paths only one side has are left to the restore (added fields)."""
-        try:
-            tree = self.manager.item_metadata(step)["state"].tree
-        except Exception:
+        tree = self._saved_tree(step)
+        if tree is None:
             return []
         saved = {_path_name(p): leaf for p, leaf in jax.tree_util.tree_flatten_with_path(tree)[0]}
         out = []
@@ -167,13 +166,18 @@ class Checkpoints:
     def _missing_added_fields(self, step: int) -> tuple[str, ...]:
         """Which of `ADDED_FIELDS` the checkpoint at `step` does not hold, read from its tree metadata
         (nothing restored); () when the metadata cannot be read."""
-        try:
-            tree = self.manager.item_metadata(step)["state"].tree
-        except Exception:
-            return ()
+        tree = self._saved_tree(step)
         if not isinstance(tree, dict):
             return ()
         return tuple(name for name in ADDED_FIELDS if name not in tree)
+
+    def _saved_tree(self, step: int):
+        """The state's tree metadata of the checkpoint at `step` (each array's shape and dtype, nothing
+        read), or None when it cannot be read."""
+        try:
+            return self.manager.item_metadata(step)["state"].tree
+        except Exception:
+            return None
 
     def _restore_without(
         self, missing: tuple[str, ...], step: int, template: TrainState, abstract: TrainState
@@ -190,4 +194,4 @@ class Checkpoints:
 
 def _path_name(path) -> str:
     """A pytree key path as "field/key/index", the same for a TrainState and its checkpoint's metadata."""
-    return "/".join(str(getattr(k, "name", getattr(k, "key", getattr(k, "idx", k)))) for k in path)
+    return jax.tree_util.keystr(path, simple=True, separator="/")
