@@ -69,8 +69,9 @@ class EnvAdapter:
     # are the task's sparse reward at it) and its episode length (the steps of every episode collected).
     success_tau: float
     episode_len: int
-    # When set, rollouts step the environments asynchronously through it; the episodes are the same
-    # as with ``step`` (every random draw is keyed by environment and step), only faster.
+    # When set, rollouts step the environments asynchronously through it, faster; every random draw is
+    # keyed by environment and step, so the episodes are ``step``'s up to float rounding, which an
+    # integer substep count can grow within a few steps (the same for any chunk).
     scheduler: SubstepScheduler | None = None
     priv_dim: int = 0
     expert: Callable[[dict, dict], jax.Array] | None = None

@@ -81,7 +81,7 @@ _STEADY_EXPERT = ExpertConfig(hold_short=False)
 
 # "cpu", the README's main job. Evaluations cost about four batches each (100 episodes in chunks of
 # 32), so it evaluates once, at the end; metrics.csv and the progress lines follow training success per batch.
-# 35,200 env steps fit 10 minutes alone on 2 fast cores with an empty compilation cache (a batch
+# 35,200 env steps take about 8-12 minutes alone on 2 fast cores with an empty compilation cache (a batch
 # after the first about 20 s; docs/performance.md), 48,000 about 12; slower 2-core machines take twice that.
 _CPU = dict(
     loop=dict(

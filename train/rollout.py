@@ -5,7 +5,8 @@ per-episode statistics training and evaluation report.
 deterministic, expert_envs, episodes=None) -> (episodes, stats)``: the policy acts step by step with
 its carry (uniform random actions during a random warm-up; the scripted expert's where ``expert_envs``),
 in lockstep (``lax.scan`` over ``adapter.step``) or, when the adapter has a ``SubstepScheduler``, each
-environment at its own pace (the same episodes, faster). ``make_split_collect`` gives the same
+environment at its own pace (faster; the episodes start alike, then part by float rounding, which
+an integer substep count can grow). ``make_split_collect`` gives the same
 ``collect`` with a batch split over host devices by whole episodes. With stored expert labels (demonstrations)
 each step's record holds the expert's noise-free action beside the action taken, and it comes out as
 ``episodes["expert_action"]``.
