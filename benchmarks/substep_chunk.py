@@ -74,10 +74,11 @@ def main(argv=None) -> None:
         run, actor, encoder = presets.make(a.agent, a.preset), None, enc.load(None)
     loop, cfg_env = run.train.loop, run.env
     runners = {c: Runner(make_train(run.train, run_adapter(run, encoder, c))) for c in a.chunks}
+    first_runner = runners[a.chunks[0]]  # what every chunk shares: the initial actor, the expert's share, the groups
     if actor is None:
-        actor = next(iter(runners.values())).init(jax.random.PRNGKey(0)).sac.actor_params
+        actor = first_runner.init(jax.random.PRNGKey(0)).sac.actor_params
     # After the warm-up: the preset's share of the expert's environments, spread over the groups.
-    expert = next(iter(runners.values())).expert_envs(loop.warmup_env_steps)
+    expert = first_runner.expert_envs(loop.warmup_env_steps)
     key = jax.random.PRNGKey(a.seed)
     args = (actor, key, jnp.asarray(False), jnp.asarray(False), jnp.asarray(expert))
 
@@ -102,7 +103,7 @@ def main(argv=None) -> None:
     parted = {c: int((np.abs(x - ref) > 1e-4).any(axis=(1, 2)).sum()) for c, x in actions.items()}
 
     substeps = np.asarray(task_rules.decode_substeps(ref[..., 2].astype(np.float32), cfg_env.substeps))
-    groups = tuple(next(iter(runners.values())).adapter.groups(loop.num_envs) or (loop.num_envs,))
+    groups = tuple(first_runner.adapter.groups(loop.num_envs) or (loop.num_envs,))
     bounds = np.cumsum((0,) + groups)
     rows = []
     for c in a.chunks:

@@ -221,7 +221,8 @@ class PushEnv(Env):
         count XLA knows at compile time), spent substeps masked: a GPU runs it without copying a loop
         predicate to the host each substep. Under `vmap` this is what a `while_loop` with a batched
         predicate computes too (every iteration runs for all and selects), so the results are the
-        same up to the order of float operations. Without it (one environment's whole step) a `while_loop` stops at the last substep."""
+        same up to the order of float operations. Without it (one environment's whole step) a
+        `while_loop` stops at the last substep."""
         m = self._model(state.info["params"], state.info.get("perturbation"))
         cfg = self.config
         goal_xy = state.info["params"].goal[:2]

@@ -4,8 +4,8 @@ task, the scripted expert and the encoder), and the run configuration's files an
 * ``smoke``: the whole pipeline (demonstrations, rollouts, updates, evaluation, checkpoints, best
   policy) on 2 CPU cores in a few minutes; it proves the plumbing, not the policy.
 * ``cpu``: the README's main job: an agent that learns to push to 1 cm on 2 CPU cores in 8-12
-  minutes on a fast machine, twice that on a slow one (VPM, 35,200 env steps, the steady-hold expert; within 1 cm on 100 standard episodes:
-  docs/results.md).
+  minutes on a fast machine, twice that on a slow one (VPM, 35,200 env steps, the steady-hold
+  expert; within 1 cm on 100 standard episodes: docs/results.md).
 * ``cpu-long``: 64,000 env steps with the teacher kept, for 1 cm (docs/results.md).
 * ``teacher-free``: the comparison's recipe in one run, 128,000 env steps: ``cpu-long``'s 64,000 with
   the teacher, then the teacher annealed away by 80,000 (cloning weight and expert share to 0, the
@@ -81,8 +81,9 @@ _STEADY_EXPERT = ExpertConfig(hold_short=False)
 
 # "cpu", the README's main job. Evaluations cost about four batches each (100 episodes in chunks of
 # 32), so it evaluates once, at the end; metrics.csv and the progress lines follow training success per batch.
-# 35,200 env steps take about 8-12 minutes alone on 2 fast cores with an empty compilation cache (a batch
-# after the first about 20 s; docs/performance.md), 48,000 about 12; slower 2-core machines take twice that.
+# 35,200 env steps take about 8-12 minutes alone on 2 fast cores with an empty compilation cache (a
+# batch after the first about 20 s; docs/performance.md), 48,000 about 12; slower 2-core machines
+# take twice that.
 _CPU = dict(
     loop=dict(
         num_envs=32,

@@ -113,7 +113,8 @@ def make_push_adapter(
     """Adapter over `PushBatch(env_config, n, max_devices, shapes)`; one batch object is built per
     environment count `n`. `substep_chunk` 0 steps all environments in lockstep: the episodes start as
     a chunk's but part within a few steps (another order of float operations, and a step's substep
-    count is an integer); any two chunks above 0 give the same episodes. The adapter's expert is `mjx_push.expert` under `expert_config`. `max_devices` 1 keeps
+    count is an integer); any two chunks above 0 give the same episodes. The adapter's expert is
+    `mjx_push.expert` under `expert_config`. `max_devices` 1 keeps
     every batch on one device (a data-parallel run's per-device share); `shapes` builds only those
     shape groups (a group's own program: its evaluation episodes come from the whole batch's adapter)."""
     if not (isinstance(substep_chunk, int) and substep_chunk >= 0):

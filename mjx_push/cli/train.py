@@ -25,8 +25,8 @@ class Train:
     """Train a pushing agent (SAC + HER) on the MJX scene: logs, checkpoints, best policy in --run-dir.
 
     Presets: cpu (the default: learns to push in 8-12 minutes on 2 fast CPU cores, twice that on slow
-    ones: 6 of 10 objects end within 1 cm), cpu-long (25-30 minutes on fast cores, for 1 cm), teacher-free (cpu-long, then the teacher annealed
-    away and as long again on its own: the comparison's recipe), smoke (minutes, proves the pipeline), reference (the reference code's one
+    ones: 6 of 10 objects end within 1 cm), cpu-long (25-30 minutes on fast cores, for 1 cm),
+    teacher-free (cpu-long, then the teacher annealed away and as long again on its own: the comparison's recipe), smoke (minutes, proves the pipeline), reference (the reference code's one
     call of its training script: 29,000 env steps with its action box and learner), paper (millions of
     env steps, sized for one GPU). Any option left unset keeps the preset's value. Ctrl-C (or
     SIGTERM) stops after the current batch with a checkpoint; --resume continues it. --fork-from starts
